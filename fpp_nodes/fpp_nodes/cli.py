@@ -1,0 +1,229 @@
+"""`fpp`: fringe projection profilometry without ROS.
+
+    fpp simulate    rig + scene -> fringe images + ground truth
+    fpp calibrate   captures of planes at known depths -> calibration file
+    fpp reconstruct fringe images -> depth (.npy/.tiff), point cloud (.ply), depth picture (.png)
+    fpp evaluate    depth vs ground truth -> RMSE, MRE, coverage
+    fpp demo        all of the above on the simulated rig, with a table of the results
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+from tqdm import tqdm
+
+from .core import io
+from .core.calibration import Calibration, CalibrationError, CameraIntrinsics
+from .core.metrics import depth_errors
+from .core.patterns import PatternSet
+from .core.reconstruct import PspReconstructor, QualityLimits, reconstruct_ftp
+from .core.simulation import Rig, SCENE_KINDS, make_scene, render, scene_from_file
+from .core.workflow import (CALIBRATION_DEPTHS_MM, calibrate_from_planes, fringe_depth_mm, held_out_scenes, score,
+                            simulated_calibration)
+
+
+def _rig(args) -> Rig:
+    return Rig(noise_sigma=args.noise, blur_sigma_px=args.blur)
+
+
+def _write_capture(folder: Path, capture, rig: Rig, patterns: PatternSet, scene_name: str, seed: int) -> None:
+    io.write_stack(folder, capture.images)
+    np.save(folder / "depth_gt_mm.npy", capture.depth_mm.astype(np.float32))
+    cv2.imwrite(str(folder / "valid_gt.png"), capture.valid.astype(np.uint8) * 255)
+    (folder / "sensor.yaml").write_text(yaml.safe_dump(
+        {"camera": rig.camera().to_dict(), "patterns": patterns.to_dict()}, sort_keys=False))
+    (folder / "capture.yaml").write_text(yaml.safe_dump(
+        {"scene": scene_name, "seed": seed, "rig": rig.to_dict(),
+         "images": [f"frequency {f}, step {j}" for f, j in patterns.order()]}, sort_keys=False))
+
+
+def cmd_simulate(args) -> None:
+    rig = _rig(args)
+    patterns = rig.pattern_set()
+    out = Path(args.out)
+    for i in tqdm(range(args.count), desc="simulate", disable=args.count == 1):
+        seed = args.seed + i
+        if args.scene in SCENE_KINDS:
+            scene = make_scene(rig, args.scene, seed, args.depth)
+        else:
+            scene = scene_from_file(rig, args.scene, args.map_kind)
+        capture = render(rig, scene, patterns, np.random.default_rng(seed))
+        folder = out if args.count == 1 else out / f"{scene.name}_{seed:04d}"
+        _write_capture(folder, capture, rig, patterns, scene.name, seed)
+    print(f"wrote {args.count} capture(s) of {patterns.count} images to {out}")
+
+
+def _read_sensor(path) -> tuple[CameraIntrinsics, PatternSet]:
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+        cam = data["camera"]
+        return (CameraIntrinsics(**{k: cam[k] for k in ("width", "height", "fx", "fy", "cx", "cy")}),
+                PatternSet.from_dict(data["patterns"]))
+    except OSError as e:
+        raise CalibrationError(f"cannot read sensor description {path}: {e.strerror}") from None
+    except (yaml.YAMLError, KeyError, TypeError) as e:
+        raise CalibrationError(f"sensor description {path} needs 'camera' (width, height, fx, fy, cx, cy) "
+                               f"and 'patterns' sections ({type(e).__name__}: {e})") from None
+
+
+def cmd_calibrate(args) -> None:
+    camera, patterns = _read_sensor(args.sensor)
+    stacks, depths = [], []
+    for item in tqdm(args.planes, desc="read planes"):
+        folder, sep, depth = item.rpartition(":")
+        if not sep:
+            raise CalibrationError(f"plane {item!r} must be FOLDER:DEPTH_MM")
+        try:
+            depths.append(float(depth))
+        except ValueError:
+            raise CalibrationError(f"plane {item!r}: depth {depth!r} is not a number") from None
+        stacks.append(io.read_stack(io.image_paths([folder])))
+    calibration, residuals = calibrate_from_planes(stacks, depths, camera, patterns, args.reference_depth)
+    calibration.save(args.out)
+    for z, r in zip(depths, residuals):
+        print(f"plane {z:8.2f} mm: fit RMSE {r * 1000:7.2f} um")
+    print(f"wrote {args.out}")
+
+
+def _reconstruct(images: np.ndarray, calibration: Calibration, method: str, limits: QualityLimits):
+    if method == "psp":
+        return PspReconstructor(calibration, limits)(images)
+    index = (len(calibration.patterns.frequencies) - 1) * calibration.patterns.steps if len(images) > 1 else 0
+    return reconstruct_ftp(images[index], calibration, limits)
+
+
+def cmd_reconstruct(args) -> None:
+    calibration = Calibration.load(args.calibration)
+    images = io.read_stack(io.image_paths(args.images))
+    limits = QualityLimits(args.min_modulation, max_depth_step_mm=args.max_depth_step)
+    start = time.perf_counter()
+    rec = _reconstruct(images, calibration, args.method, limits)
+    elapsed = time.perf_counter() - start
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    io.write_depth(out, "depth_mm", rec.depth_mm)
+    cv2.imwrite(str(out / "depth.png"), io.depth_picture(rec.depth_mm))
+    points = io.write_ply(out / "points.ply", rec.xyz_mm / 1000.0, images.mean(axis=0))
+    print(f"{args.method}: {points} points ({rec.valid.mean():.1%} of pixels) in {elapsed * 1000:.1f} ms -> {out}")
+
+
+def cmd_evaluate(args) -> None:
+    pred = io.read_depth(args.prediction)
+    truth = io.read_depth(args.truth)
+    if pred.shape != truth.shape:
+        raise io.InputError(f"prediction is {pred.shape[1]}x{pred.shape[0]}, truth is {truth.shape[1]}x{truth.shape[0]}")
+    valid = None
+    if args.valid:
+        mask = io.read_image(args.valid)
+        if mask.shape != truth.shape:
+            raise io.InputError(f"valid mask {args.valid} is {mask.shape[1]}x{mask.shape[0]}, truth is {truth.shape[1]}x{truth.shape[0]}")
+        valid = mask > 0
+    e = depth_errors(pred, truth, valid)
+    print(f"RMSE {e.rmse_mm:.4f} mm   MRE {e.mre:.3e}   coverage {e.coverage:.1%}   pixels {e.pixels}")
+
+
+def cmd_demo(args) -> None:
+    """Calibrate the simulated rig from planes, measure held-out scenes with both methods, report."""
+    rig = Rig()
+    patterns = rig.pattern_set()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"calibrating from planes at {', '.join(f'{z:g}' for z in CALIBRATION_DEPTHS_MM)} mm ...")
+    calibration, residuals = simulated_calibration(rig, patterns, seed=args.seed)
+    calibration.save(out / "calibration.yaml")
+    print("  fit RMSE per plane (um): " + ", ".join(f"{r * 1000:.1f}" for r in residuals))
+    psp = PspReconstructor(calibration)
+    rows = []
+    for name, scene, seed in tqdm(list(held_out_scenes(rig, args.scenes, args.seed + 1000)), desc="scenes"):
+        capture = render(rig, scene, patterns, np.random.default_rng(seed))
+        start = time.perf_counter()
+        multi = psp(capture.images)
+        psp_ms = (time.perf_counter() - start) * 1000
+        single = reconstruct_ftp(capture.images[-patterns.steps], calibration)
+        result = score(multi, capture.depth_mm, capture.valid, calibration, rig.noise_sigma, name)
+        ftp = depth_errors(single.depth_mm, capture.depth_mm, capture.valid, fringe_depth_mm(calibration, multi.phase))
+        folder = out / name
+        folder.mkdir(exist_ok=True)
+        for method, rec in (("psp", multi), ("ftp", single)):
+            io.write_depth(folder, f"depth_{method}_mm", rec.depth_mm)
+            cv2.imwrite(str(folder / f"depth_{method}.png"), io.depth_picture(rec.depth_mm))
+        cv2.imwrite(str(folder / "depth_truth.png"), io.depth_picture(np.where(capture.valid, capture.depth_mm, np.nan)))
+        io.write_ply(folder / "points_psp.ply", multi.xyz_mm / 1000.0, capture.images[0])
+        cv2.imwrite(str(folder / "input.png"), capture.images[-patterns.steps])
+        rows.append((name, result, ftp, psp_ms))
+    print(f"\nheld-out scenes, default rig (noise {rig.noise_sigma} counts, blur {rig.blur_sigma_px} px); "
+          "RMSE over pixels valid in both prediction and truth")
+    print(f"{'scene':18} {'PSP RMSE mm':>11} {'noise-limit':>11} {'ratio':>6} {'orders':>6} {'cover':>6} "
+          f"{'FTP RMSE mm':>11} {'FTP orders':>10} {'PSP ms':>7}")
+    for name, r, f, ms in rows:
+        e = r.errors
+        print(f"{name:18} {e.rmse_mm:11.4f} {r.noise_limited_rmse_mm:11.4f} {e.rmse_mm / r.noise_limited_rmse_mm:6.2f} "
+              f"{e.order_errors:6d} {e.coverage:6.1%} {f.rmse_mm:11.3f} {f.order_errors:10d} {ms:7.1f}")
+    print(f"\nwrote depth (.npy/.tiff/.png) and point clouds (.ply, metres) to {out}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="fpp", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("simulate", help="render fringe images of a scene with the simulated rig")
+    p.add_argument("--scene", default="sculpture",
+                   help="sculpture, objects, plane, or a height map file (.npy, 16-bit PNG, TIFF; mm)")
+    p.add_argument("--map-kind", choices=("height", "depth"), default="height", help="what a scene file holds")
+    p.add_argument("--depth", type=float, default=None, help="plane depth in mm (scene 'plane')")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--count", type=int, default=1, help="captures with seeds seed, seed+1, ...")
+    p.add_argument("--noise", type=float, default=Rig.noise_sigma, help="camera noise, counts")
+    p.add_argument("--blur", type=float, default=Rig.blur_sigma_px, help="defocus blur sigma, pixels")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("calibrate", help="fit the phase-to-depth model from captures of planes")
+    p.add_argument("planes", nargs="+", metavar="FOLDER:DEPTH_MM", help="fringe images of a plane square to the camera")
+    p.add_argument("--sensor", required=True, help="YAML with 'camera' intrinsics and 'patterns' (fpp simulate writes one)")
+    p.add_argument("--reference-depth", type=float, default=None, help="background depth in mm (default: median plane)")
+    p.add_argument("--out", default="calibration.yaml")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("reconstruct", help="fringe images -> depth, point cloud, picture")
+    p.add_argument("images", nargs="+", help="a folder of fringe_*.png/.tif, or the image files in projection order")
+    p.add_argument("--calibration", required=True)
+    p.add_argument("--method", choices=("psp", "ftp"), default="psp",
+                   help="psp: all images; ftp: one image (the first of the highest frequency)")
+    p.add_argument("--min-modulation", type=float, default=QualityLimits.min_modulation)
+    p.add_argument("--max-depth-step", type=float, default=QualityLimits.max_depth_step_mm)
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=cmd_reconstruct)
+
+    p = sub.add_parser("evaluate", help="depth map vs ground truth")
+    p.add_argument("prediction", help=".npy or float TIFF depth in mm")
+    p.add_argument("truth", help=".npy or float TIFF depth in mm")
+    p.add_argument("--valid", help="mask image of the ground truth's valid pixels")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("demo", help="simulate, calibrate, reconstruct and evaluate end to end")
+    p.add_argument("--out", default="out/demo")
+    p.add_argument("--scenes", type=int, default=4)
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except (ValueError, OSError) as e:  # every error of bad input is one of these
+        print(f"fpp {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

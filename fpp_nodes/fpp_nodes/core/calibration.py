@@ -1,0 +1,221 @@
+"""Phase to depth: the rational model of Vo et al. (2012), the paper's equation (3),
+
+    z = C p^T / D p^T,   p = {1, phi, u, u phi, v, v phi, u^2, u^2 phi, v^2, v^2 phi, uv, uv phi}
+
+with C = {1, c1 .. c11} and D = {d0 .. d11}; its least-squares fit from captures of planes at known
+depths; back-projection to XYZ; and the versioned calibration file that holds them.
+
+Here z is the depth along the camera's optical axis, in millimetres, (u, v) the camera pixel
+(column, row) and phi the unwrapped phase of the highest frequency.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .patterns import PatternError, PatternSet
+
+TERMS = ("1", "phi", "u", "u*phi", "v", "v*phi", "u^2", "u^2*phi", "v^2", "v^2*phi", "u*v", "u*v*phi")
+FORMAT_NAME = "fpp_calibration"
+FORMAT_VERSION = 1
+
+
+class CalibrationError(ValueError):
+    """A calibration that cannot be fitted, read or used."""
+
+
+def _uv_terms(u, v):
+    """The phase-free factors of p, in pairs: p = [t, t phi for t in (1, u, v, u^2, v^2, uv)]."""
+    u = np.asarray(u, np.float64)
+    v = np.asarray(v, np.float64)
+    return [np.ones(np.broadcast(u, v).shape), u + 0 * v, v + 0 * u, u * u + 0 * v, v * v + 0 * u, u * v]
+
+
+@dataclass
+class RationalModel:
+    c: np.ndarray  # 12 numerator coefficients, c[0] == 1
+    d: np.ndarray  # 12 denominator coefficients
+
+    def __post_init__(self):
+        self.c = np.asarray(self.c, np.float64).reshape(-1)
+        self.d = np.asarray(self.d, np.float64).reshape(-1)
+        if self.c.size != 12 or self.d.size != 12:
+            raise CalibrationError(f"the rational model needs 12 + 12 coefficients, got {self.c.size} + {self.d.size}")
+        if not (np.all(np.isfinite(self.c)) and np.all(np.isfinite(self.d))):
+            raise CalibrationError("rational model coefficients must be finite")
+        if self.c[0] != 1.0:
+            raise CalibrationError(f"c0 must be 1 (the model's scale is fixed by it), got {self.c[0]}")
+
+    def linear_in_phase(self, u, v):
+        """(Ca, Cb, Da, Db) with C p = Ca + Cb phi and D p = Da + Db phi at pixel(s) (u, v)."""
+        t = _uv_terms(u, v)
+        ca = sum(self.c[2 * k] * t[k] for k in range(6))
+        cb = sum(self.c[2 * k + 1] * t[k] for k in range(6))
+        da = sum(self.d[2 * k] * t[k] for k in range(6))
+        db = sum(self.d[2 * k + 1] * t[k] for k in range(6))
+        return ca, cb, da, db
+
+    def depth(self, phase, u, v):
+        ca, cb, da, db = self.linear_in_phase(u, v)
+        return (ca + cb * phase) / (da + db * phase)
+
+    def phase_at_depth(self, depth, u, v):
+        """The inverse: the unwrapped phase a pixel sees at a given depth."""
+        ca, cb, da, db = self.linear_in_phase(u, v)
+        return (ca - depth * da) / (depth * db - cb)
+
+    def depth_per_radian(self, phase, u, v):
+        """dz/dphi: how far a phase error moves the depth."""
+        ca, cb, da, db = self.linear_in_phase(u, v)
+        return (cb * da - ca * db) / (da + db * phase) ** 2
+
+
+def design_matrix(u, v, phase, depth):
+    """Rows of the linear fit C p - z D p = 0 with c0 = 1 moved to the right-hand side."""
+    t = _uv_terms(u, v)
+    p = np.empty((np.size(u), 12))
+    for k in range(6):
+        p[:, 2 * k] = t[k].ravel()
+        p[:, 2 * k + 1] = (t[k] * phase).ravel()
+    a = np.hstack([p[:, 1:], -np.asarray(depth).reshape(-1, 1) * p])
+    return a, -p[:, 0]
+
+
+def fit_rational_model(u, v, phase, depth, iterations: int = 3, gauge_weight: float = 1e-6) -> RationalModel:
+    """Least-squares fit of C and D from samples (u, v, phi, z).
+
+    The algebraic residual C p - z D p is divided by D p (reweighting from the previous iterate),
+    which makes it the depth error in millimetres. Where the rig has no lens distortion the
+    12-term model is redundant: multiplying C and D by the same (1 + a u + b v) changes nothing, so
+    a tiny penalty on the second-order terms picks the member of that family without them.
+    Columns are scaled to unit norm so that pixel and phase units do not ruin the conditioning.
+    """
+    u, v, phase, depth = (np.asarray(x, np.float64).ravel() for x in (u, v, phase, depth))
+    ok = np.isfinite(u) & np.isfinite(v) & np.isfinite(phase) & np.isfinite(depth)
+    u, v, phase, depth = u[ok], v[ok], phase[ok], depth[ok]
+    if u.size < 23:
+        raise CalibrationError(f"need at least 23 valid samples to fit the rational model, got {u.size}")
+    if np.unique(depth).size < 2:
+        raise CalibrationError("need captures at two or more different depths")
+    a, b = design_matrix(u, v, phase, depth)
+    scale = np.linalg.norm(a, axis=0)
+    scale[scale == 0] = 1.0
+    a = a / scale
+    second_order = np.zeros(23, bool)
+    second_order[5:11] = True  # c6..c11 (indices shifted by the fixed c0)
+    second_order[17:23] = True  # d6..d11
+    penalty = np.sqrt(gauge_weight) * np.linalg.norm(b) * np.diag(second_order.astype(float))[second_order]
+    weights = np.ones_like(b)
+    for _ in range(iterations):
+        lhs = np.vstack([a * weights[:, None], penalty])
+        rhs = np.concatenate([b * weights, np.zeros(len(penalty))])
+        x = np.linalg.lstsq(lhs, rhs, rcond=None)[0] / scale
+        model = RationalModel(np.concatenate([[1.0], x[:11]]), x[11:])
+        ca, cb, da, db = model.linear_in_phase(u, v)
+        denom = np.abs(da + db * phase)
+        weights = 1.0 / np.maximum(denom, 1e-12 * denom.max())
+        weights /= weights.mean()
+    return model
+
+
+@dataclass
+class CameraIntrinsics:
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def __post_init__(self):
+        if self.width < 1 or self.height < 1:
+            raise CalibrationError(f"camera size must be positive, got {self.width}x{self.height}")
+        if not (self.fx > 0 and self.fy > 0):
+            raise CalibrationError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+
+    def rays(self) -> tuple[np.ndarray, np.ndarray]:
+        """x/z and y/z of every pixel's viewing ray (optical frame: x right, y down, z forward)."""
+        u = np.arange(self.width, dtype=np.float64)
+        v = np.arange(self.height, dtype=np.float64)
+        return np.broadcast_to((u - self.cx) / self.fx, (self.height, self.width)), \
+            np.broadcast_to(((v - self.cy) / self.fy)[:, None], (self.height, self.width))
+
+    def to_dict(self) -> dict:
+        return {k: (int(getattr(self, k)) if k in ("width", "height") else float(getattr(self, k)))
+                for k in ("width", "height", "fx", "fy", "cx", "cy")}
+
+
+def back_project(depth: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
+    """Organized XYZ (H, W, 3) in the camera's optical frame, same units as depth; NaN stays NaN."""
+    x, y = camera.rays()
+    xyz = np.empty(depth.shape + (3,), np.float32)
+    np.multiply(depth, x, out=xyz[..., 0])
+    np.multiply(depth, y, out=xyz[..., 1])
+    xyz[..., 2] = depth
+    return xyz
+
+
+@dataclass
+class Calibration:
+    """Everything needed to turn a fringe sequence into depth: camera, model, pattern set."""
+
+    camera: CameraIntrinsics
+    model: RationalModel
+    patterns: PatternSet
+    reference_depth_mm: float  # where the background sits; FTP uses it to choose the global fringe order
+
+    def to_dict(self) -> dict:
+        return {
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "depth_unit": "mm",
+            "camera": self.camera.to_dict(),
+            "model": {"terms": list(TERMS), "c": self.model.c.tolist(), "d": self.model.d.tolist()},
+            "patterns": self.patterns.to_dict(),
+            "reference_depth_mm": float(self.reference_depth_mm),
+        }
+
+    @classmethod
+    def from_dict(cls, d) -> "Calibration":
+        if not isinstance(d, dict):
+            raise CalibrationError("calibration file is not a YAML mapping")
+        if d.get("format") != FORMAT_NAME:
+            raise CalibrationError(f"not a calibration file: 'format' is {d.get('format')!r}, expected {FORMAT_NAME!r}")
+        if d.get("version") != FORMAT_VERSION:
+            raise CalibrationError(f"calibration version {d.get('version')!r} is not supported (this build reads {FORMAT_VERSION})")
+        missing = [k for k in ("camera", "model", "patterns", "reference_depth_mm") if k not in d]
+        if missing:
+            raise CalibrationError(f"calibration is missing {', '.join(missing)}")
+        try:
+            camera = CameraIntrinsics(**{k: d["camera"][k] for k in ("width", "height", "fx", "fy", "cx", "cy")})
+            model = RationalModel(d["model"]["c"], d["model"]["d"])
+            patterns = PatternSet.from_dict(d["patterns"])
+            reference = float(d["reference_depth_mm"])
+        except KeyError as e:
+            raise CalibrationError(f"calibration is missing {e.args[0]!r}") from None
+        except PatternError as e:
+            raise CalibrationError(str(e)) from None
+        except (TypeError, ValueError) as e:
+            raise CalibrationError(f"calibration has a malformed value: {e}") from None
+        return cls(camera, model, patterns, reference)
+
+    def save(self, path) -> None:
+        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
+
+    @classmethod
+    def load(cls, path) -> "Calibration":
+        try:
+            text = Path(path).read_text()
+        except OSError as e:
+            raise CalibrationError(f"cannot read calibration {path}: {e.strerror}") from None
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as e:
+            raise CalibrationError(f"calibration {path} is not valid YAML: {str(e).splitlines()[0]}") from None
+        try:
+            return cls.from_dict(data)
+        except CalibrationError as e:
+            raise CalibrationError(f"{path}: {e}") from None

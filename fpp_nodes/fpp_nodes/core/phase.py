@@ -1,0 +1,166 @@
+"""Phase retrieval: N-step phase shifting, temporal multi-frequency unwrapping (the paper's
+equation (2)), and Fourier-transform profilometry (Takeda) with spatial unwrapping.
+
+Phases are in radians. Wrapped phases lie in [0, 2 pi) as in the paper.
+Images are modelled as I_j = A + B cos(phi + delta_j), delta_j = 2 pi j / N.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+TWO_PI = 2.0 * np.pi
+
+
+class PhaseError(ValueError):
+    """Images that cannot be turned into phase."""
+
+
+@dataclass
+class PhaseMaps:
+    phase: np.ndarray  # wrapped phase phi, [0, 2 pi)
+    modulation: np.ndarray  # B, in the images' units
+    background: np.ndarray  # A, in the images' units
+
+
+def _work_dtype(images) -> type:
+    return np.float64 if images.dtype == np.float64 else np.float32
+
+
+def _weighted_sum(images: np.ndarray, weights: np.ndarray, dtype) -> np.ndarray:
+    """sum_j w_j I_j in one pass per pair of images (cv2 converts and accumulates without temporaries)."""
+    terms = [(images[j], float(w)) for j, w in enumerate(weights) if abs(w) > 1e-12]
+    depth = cv2.CV_64F if dtype == np.float64 else cv2.CV_32F
+    total = None
+    for k in range(0, len(terms), 2):
+        (a, wa), (b, wb) = terms[k], terms[k + 1] if k + 1 < len(terms) else (terms[k][0], 0.0)
+        part = cv2.addWeighted(a, wa, b, wb, 0.0, dtype=depth)
+        total = part if total is None else cv2.add(total, part, dtype=depth)
+    return total
+
+
+def sin_cos_sums(images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """S = sum_j I_j sin(delta_j), C = sum_j I_j cos(delta_j) of an (N, H, W) stack."""
+    images = np.asarray(images)
+    if images.ndim != 3 or images.shape[0] < 3:
+        raise PhaseError(f"need a stack of N >= 3 images shaped (N, H, W), got shape {images.shape}")
+    if not np.issubdtype(images.dtype, np.number) or images.dtype.kind == "c":
+        raise PhaseError(f"images must be real numbers, got {images.dtype}")
+    if images.dtype.kind == "f" and images.dtype != np.float64:
+        images = images.astype(np.float32, copy=False)
+    images = np.ascontiguousarray(images)
+    delta = TWO_PI * np.arange(images.shape[0]) / images.shape[0]
+    dtype = _work_dtype(images)
+    return _weighted_sum(images, np.sin(delta), dtype), _weighted_sum(images, np.cos(delta), dtype)
+
+
+def wrapped_phase(images: np.ndarray) -> np.ndarray:
+    """Least-squares wrapped phase of N phase-shifted images: phi = atan2(-S, C), in [0, 2 pi)."""
+    s, c = sin_cos_sums(images)
+    return _atan2_positive(np.negative(s, out=s), c)
+
+
+def _atan2_positive(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    phi = np.arctan2(y, x, out=y)
+    np.add(phi, TWO_PI, out=phi, where=phi < 0)
+    return phi
+
+
+def phase_shift(images: np.ndarray) -> PhaseMaps:
+    """Wrapped phase with the background A = mean(I) and modulation B = (2/N) sqrt(S^2 + C^2)."""
+    images = np.asarray(images)
+    s, c = sin_cos_sums(images)
+    n = images.shape[0]
+    modulation = cv2.magnitude(s, c) * (2.0 / n)
+    background = images.mean(axis=0, dtype=_work_dtype(images))
+    return PhaseMaps(_atan2_positive(np.negative(s, out=s), c), modulation, background)
+
+
+def unwrap_temporal(wrapped: list[np.ndarray], frequencies, max_residual: float = np.pi / 2):
+    """Hierarchical temporal unwrapping, equation (2):
+
+        phi_i = phi_i^w + 2 pi INT((phi_{i-1} f_i / f_{i-1} - phi_i^w) / 2 pi)
+
+    starting from the first frequency, whose wrapped phase is absolute (f_1 = 1).
+    Returns the unwrapped phase of the highest frequency and a mask of pixels whose fringe order is
+    consistent at every level: |phi_{i-1} f_i / f_{i-1} - phi_i| <= max_residual. A larger residual
+    means the lower frequency's phase was too noisy (or the pixel mixes two surfaces) to pick the order.
+    """
+    if len(wrapped) != len(frequencies):
+        raise PhaseError(f"{len(wrapped)} wrapped phase maps for {len(frequencies)} frequencies")
+    if frequencies[0] != 1:
+        raise PhaseError(f"temporal unwrapping starts from one fringe, got first frequency {frequencies[0]}")
+    phase = wrapped[0]
+    consistent = np.ones(phase.shape, bool)
+    for f_prev, f, phase_w in zip(frequencies, frequencies[1:], wrapped[1:]):
+        predicted = cv2.addWeighted(phase, f / f_prev, phase_w, -1.0, 0.0)  # phi_{i-1} f_i/f_{i-1} - phi_i^w
+        order = np.rint(predicted * (1.0 / TWO_PI))
+        residual = cv2.scaleAdd(order, -TWO_PI, predicted)
+        consistent &= np.abs(residual) <= max_residual
+        phase = cv2.scaleAdd(order, TWO_PI, phase_w)
+    return phase, consistent
+
+
+def unwrap_spatial(wrapped: np.ndarray) -> np.ndarray:
+    """Least-squares spatial unwrapping (Ghiglia and Romero 1994, DCT solution of the Poisson equation),
+    made congruent with the wrapped phase: the result differs from it by whole multiples of 2 pi.
+
+    Correct where the true phase changes by less than pi between neighbouring pixels; height
+    discontinuities and shadows break it, as they break every spatial unwrapper.
+    """
+    psi = np.asarray(wrapped, np.float64)
+    h, w = psi.shape
+    def wrap(a):
+        return (a + np.pi) % TWO_PI - np.pi
+    dx = np.zeros_like(psi)
+    dy = np.zeros_like(psi)
+    dx[:, :-1] = wrap(np.diff(psi, axis=1))
+    dy[:-1, :] = wrap(np.diff(psi, axis=0))
+    rho = dx.copy()
+    rho[:, 1:] -= dx[:, :-1]
+    rho += dy
+    rho[1:, :] -= dy[:-1, :]
+    ph, pw = h + h % 2, w + w % 2  # cv2.dct wants even sizes
+    padded = np.zeros((ph, pw))
+    padded[:h, :w] = rho
+    rho_hat = cv2.dct(padded)
+    ii = np.arange(ph)[:, None]
+    jj = np.arange(pw)[None, :]
+    denom = 2.0 * np.cos(np.pi * ii / ph) + 2.0 * np.cos(np.pi * jj / pw) - 4.0
+    denom[0, 0] = 1.0
+    phi_hat = rho_hat / denom
+    phi_hat[0, 0] = 0.0
+    smooth = cv2.idct(phi_hat)[:h, :w]
+    return psi + TWO_PI * np.rint((smooth - psi) / TWO_PI)
+
+
+def ftp_wrapped_phase(image: np.ndarray, vertical_fringes: bool = True, band: float = 0.5):
+    """Takeda's Fourier-transform profilometry on one fringe image.
+
+    Keeps the spectral lobe around the positive carrier (found as the strongest peak away from DC
+    along the axis across the fringes), with a Hann window of half-width band * carrier, and returns
+    (wrapped phase in [0, 2 pi), lobe amplitude). The phase grows along +x (or +y), so it equals the
+    projector phase where the projector phase grows along +x too.
+    """
+    img = np.asarray(image, np.float64)
+    if img.ndim != 2 or min(img.shape) < 8:
+        raise PhaseError(f"FTP needs one 2-D image of at least 8x8 pixels, got shape {img.shape}")
+    if not vertical_fringes:
+        phase, amp = ftp_wrapped_phase(img.T, True, band)
+        return phase.T, amp.T
+    h, w = img.shape
+    spectrum = np.fft.fft2(img - img.mean())
+    fx = np.fft.fftfreq(w) * w  # cycles per image width
+    fy = np.fft.fftfreq(h) * h
+    row_power = np.abs(spectrum).sum(axis=0)
+    search = fx >= 2.0
+    if not search.any():
+        raise PhaseError("image too narrow to find a fringe carrier")
+    carrier = fx[search][np.argmax(row_power[search])]
+    half = max(band * carrier, 1.0)
+    wx = np.where(np.abs(fx - carrier) < half, 0.5 * (1 + np.cos(np.pi * (fx - carrier) / half)), 0.0)
+    wy = np.where(np.abs(fy) < half, 0.5 * (1 + np.cos(np.pi * fy / half)), 0.0)
+    analytic = np.fft.ifft2(spectrum * wy[:, None] * wx[None, :])
+    return np.mod(np.angle(analytic), TWO_PI), 2.0 * np.abs(analytic)

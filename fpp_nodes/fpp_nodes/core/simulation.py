@@ -1,0 +1,346 @@
+"""A simulated fringe-projection rig: pinhole camera, pinhole projector, synthetic scenes.
+
+The camera sits at the origin of its optical frame (x right, y down, z forward, millimetres). The
+projector sits baseline_mm to its right and aims at the point standoff_mm straight ahead. A scene is
+the depth the camera sees at every pixel (a depth map is a solid: what lies behind it is matter), so
+the ground truth is exact by construction. A pixel's fringe phase is the projector phase of the
+surface point it sees; points the projector cannot reach are in shadow and get ambient light only.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, asdict
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .calibration import CameraIntrinsics, RationalModel
+from .patterns import PatternSet, fringe_value
+
+
+class SimulationError(ValueError):
+    """A rig, scene or scene file that cannot be rendered."""
+
+
+@dataclass(frozen=True)
+class Rig:
+    """Defaults after the paper: 640x480 camera seeing about 155 mm at about 1.2 m."""
+
+    width: int = 640
+    height: int = 480
+    focal_px: float = 4955.0  # 640 px over 155 mm at 1200 mm
+    standoff_mm: float = 1200.0
+    baseline_mm: float = 200.0
+    projector_width: int = 1280
+    projector_height: int = 800
+    projector_field_mm: float = 220.0  # width of the lit area at the standoff
+    projector_gamma: float = 2.2
+    ambient: float = 0.04  # fraction of the camera's full scale
+    gain: float = 0.8  # camera level of full projector light on albedo 1, fraction of full scale
+    noise_sigma: float = 1.0  # camera noise standard deviation, in camera counts
+    blur_sigma_px: float = 0.5  # defocus, Gaussian standard deviation in camera pixels
+    camera_bit_depth: int = 8
+
+    def __post_init__(self):
+        if self.width < 8 or self.height < 8:
+            raise SimulationError(f"camera must be at least 8x8 pixels, got {self.width}x{self.height}")
+        for name in ("focal_px", "standoff_mm", "projector_field_mm", "projector_gamma"):
+            if not getattr(self, name) > 0:
+                raise SimulationError(f"{name} must be > 0, got {getattr(self, name)}")
+        for name in ("ambient", "gain", "noise_sigma", "blur_sigma_px"):
+            if not getattr(self, name) >= 0:
+                raise SimulationError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.camera_bit_depth not in (8, 16):
+            raise SimulationError(f"camera_bit_depth must be 8 or 16, got {self.camera_bit_depth}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @property
+    def full_scale(self) -> int:
+        return (1 << self.camera_bit_depth) - 1
+
+    def camera(self) -> CameraIntrinsics:
+        return CameraIntrinsics(self.width, self.height, self.focal_px, self.focal_px,
+                                (self.width - 1) / 2.0, (self.height - 1) / 2.0)
+
+    def pattern_set(self, **kwargs) -> PatternSet:
+        """The default pattern set for this projector (overrides as keyword arguments)."""
+        kwargs.setdefault("gamma", self.projector_gamma)
+        return PatternSet(width=self.projector_width, height=self.projector_height, **kwargs)
+
+    @property
+    def projector_center(self) -> np.ndarray:
+        return np.array([self.baseline_mm, 0.0, 0.0])
+
+    def projector_rotation(self) -> np.ndarray:
+        """Rows are the projector's x, y, z axes in camera coordinates (z towards the aim point)."""
+        z = np.array([0.0, 0.0, self.standoff_mm]) - self.projector_center
+        z /= np.linalg.norm(z)
+        x = np.cross([0.0, 1.0, 0.0], z)
+        x /= np.linalg.norm(x)
+        return np.stack([x, np.cross(z, x), z])
+
+    def projector_intrinsics(self) -> tuple[float, float, float]:
+        """(focal, cx, cy) of the projector in projector pixels."""
+        distance = np.hypot(self.baseline_mm, self.standoff_mm)
+        focal = self.projector_width * distance / self.projector_field_mm
+        return focal, (self.projector_width - 1) / 2.0, (self.projector_height - 1) / 2.0
+
+    def to_projector(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Projector pixel coordinates (x, y) and depth in the projector frame of (..., 3) points."""
+        r = self.projector_rotation()
+        q = (points - self.projector_center) @ r.T
+        focal, cx, cy = self.projector_intrinsics()
+        return focal * q[..., 0] / q[..., 2] + cx, focal * q[..., 1] / q[..., 2] + cy, q[..., 2]
+
+    def true_model(self, patterns: PatternSet) -> RationalModel:
+        """The rational model this distortion-free rig obeys, derived from its geometry.
+
+        A camera ray Z (x, y, 1) lands on projector coordinate
+        s = f (Z a_r + t_r) / (Z a_3 + t_3) + c_r, and phase = k s with k = 2 pi f_max / L, so
+        Z = (f t_r + c_r t_3 - (t_3 / k) phase) / ((phase / k - c_r) a_3 - f a_r)
+        with a_r, a_3 linear in (u, v): the first six terms of equation (3), the rest zero.
+        """
+        check_patterns(self, patterns)
+        axis = 0 if patterns.orientation == "vertical" else 1
+        r = self.projector_rotation()
+        t = -r @ self.projector_center
+        focal, cx_p, cy_p = self.projector_intrinsics()
+        c_r = (cx_p, cy_p)[axis]
+        k = 2.0 * np.pi * patterns.frequencies[-1] / patterns.period_axis_length
+        cam = self.camera()
+
+        def linear(row):  # row . ((u - cx)/fx, (v - cy)/fy, 1) = const + du u + dv v
+            return (row[2] - row[0] * cam.cx / cam.fx - row[1] * cam.cy / cam.fy, row[0] / cam.fx, row[1] / cam.fy)
+
+        alpha, beta = linear(r[axis]), linear(r[2])
+        c = np.zeros(12)
+        d = np.zeros(12)
+        c[0], c[1] = focal * t[axis] + c_r * t[2], -t[2] / k
+        for i in range(3):  # terms 1, u, v and their phase partners
+            d[2 * i] = -c_r * beta[i] - focal * alpha[i]
+            d[2 * i + 1] = beta[i] / k
+        return RationalModel(c / c[0], d / c[0])
+
+
+def check_patterns(rig: Rig, patterns: PatternSet) -> None:
+    if (patterns.width, patterns.height) != (rig.projector_width, rig.projector_height):
+        raise SimulationError(f"pattern set is {patterns.width}x{patterns.height} but the projector is "
+                              f"{rig.projector_width}x{rig.projector_height}")
+
+
+@dataclass
+class Scene:
+    name: str
+    depth_mm: np.ndarray  # (H, W) depth along the camera axis of the surface each pixel sees
+    albedo: np.ndarray  # (H, W) in [0, 1]
+
+
+@dataclass
+class Capture:
+    images: np.ndarray  # (F*N, H, W) uint8/uint16 in projection order
+    depth_mm: np.ndarray  # (H, W) float64 ground truth
+    valid: np.ndarray  # (H, W) bool: lit by the projector (not in shadow, inside its frame)
+    projector_coord: np.ndarray  # (H, W) exact projector coordinate across the fringes
+
+
+# ---------------------------------------------------------------- scenes
+
+def _grid_mm(rig: Rig):
+    """Metric coordinates (X, Y) of every pixel's footprint on the plane at the standoff."""
+    x, y = rig.camera().rays()
+    return x * rig.standoff_mm, y * rig.standoff_mm
+
+
+def _background_depth(rig: Rig, tilt_x_deg: float = 0.0, tilt_y_deg: float = 0.0, offset_mm: float = 0.0):
+    """Depth of the plane Z = Z0 + X tan(a) + Y tan(b) along every camera ray."""
+    x, y = rig.camera().rays()
+    return (rig.standoff_mm + offset_mm) / (1.0 - x * np.tan(np.radians(tilt_x_deg)) - y * np.tan(np.radians(tilt_y_deg)))
+
+
+def _smooth_field(rng, shape, scale_px: float) -> np.ndarray:
+    """Random smooth field in [0, 1] with features about scale_px wide."""
+    noise = cv2.GaussianBlur(rng.standard_normal(shape).astype(np.float32), (0, 0), scale_px)
+    noise -= noise.min()
+    return (noise / max(float(noise.max()), 1e-12)).astype(np.float64)
+
+
+def _albedo(rng, shape, low: float, high: float) -> np.ndarray:
+    return low + (high - low) * _smooth_field(rng, shape, 12.0)
+
+
+def plane_scene(rig: Rig, depth_mm: float, tilt_x_deg: float = 0.0, tilt_y_deg: float = 0.0) -> Scene:
+    depth = _background_depth(rig, tilt_x_deg, tilt_y_deg, depth_mm - rig.standoff_mm)
+    return Scene(f"plane@{depth_mm:g}mm", depth, np.full(depth.shape, 0.9))
+
+
+def _ellipsoid(X, Y, cx, cy, a, b, height):
+    r2 = ((X - cx) / a) ** 2 + ((Y - cy) / b) ** 2
+    return height * np.sqrt(np.clip(1.0 - r2, 0.0, None))
+
+
+def sculpture_scene(rig: Rig, rng: np.random.Generator) -> Scene:
+    """A background plane with one plaster-bust-like object: body, head, nose, brows, folds."""
+    X, Y = _grid_mm(rig)
+    cx, cy = rng.uniform(-12, 12), rng.uniform(-6, 10)
+    body = _ellipsoid(X, Y, cx, cy + 22, rng.uniform(28, 40), rng.uniform(22, 30), rng.uniform(25, 40))
+    body += rng.uniform(0.8, 2.0) * np.sin(X / rng.uniform(4, 7) + rng.uniform(0, 6)) * (body > 0)
+    hx, hy = cx + rng.uniform(-5, 5), cy - rng.uniform(14, 20)
+    ha, hb = rng.uniform(15, 20), rng.uniform(18, 24)
+    head = _ellipsoid(X, Y, hx, hy, ha, hb, rng.uniform(45, 60))
+    face = np.zeros_like(X)
+    for _ in range(int(rng.integers(4, 8))):  # nose, brows, cheeks, hair curls
+        px, py = hx + rng.uniform(-0.6, 0.6) * ha, hy + rng.uniform(-0.6, 0.6) * hb
+        s = rng.uniform(2.0, 5.0)
+        face += rng.uniform(-3, 6) * np.exp(-((X - px) ** 2 + (Y - py) ** 2) / (2 * s * s))
+    head = np.where(head > 0, head + face, 0.0)
+    height = np.maximum(np.maximum(body, head), 0.0)
+    depth = _background_depth(rig, rng.uniform(-3, 3), rng.uniform(-3, 3)) - height
+    albedo = np.where(height > 0, _albedo(rng, X.shape, 0.85, 1.0), _albedo(rng, X.shape, 0.55, 0.8))
+    return Scene("sculpture", depth, albedo)
+
+
+def objects_scene(rig: Rig, rng: np.random.Generator) -> Scene:
+    """Two to four separated objects (boxes, cylinders, domes, cones on pedestals) whose edges are
+    steps of 15-45 mm: far taller than one fringe period of the highest frequency."""
+    X, Y = _grid_mm(rig)
+    height = np.zeros_like(X)
+    w, h = X.max() - X.min(), Y.max() - Y.min()
+    cells = [(i, j) for i in range(3) for j in range(2)]
+    chosen = rng.choice(len(cells), size=int(rng.integers(2, 5)), replace=False)
+    for k in chosen:
+        i, j = cells[k]
+        size = min(w / 3, h / 2) / 2 - 6  # half-width that leaves a gap between cells
+        ox = X.min() + (i + 0.5) * w / 3 + rng.uniform(-3, 3)
+        oy = Y.min() + (j + 0.5) * h / 2 + rng.uniform(-3, 3)
+        radius = rng.uniform(0.6, 1.0) * size
+        top = rng.uniform(15, 45)
+        kind = rng.choice(["box", "cylinder", "dome", "cone"])
+        dx, dy = X - ox, Y - oy
+        if kind == "box":
+            angle = rng.uniform(0, np.pi)
+            ru = np.abs(dx * np.cos(angle) + dy * np.sin(angle))
+            rv = np.abs(-dx * np.sin(angle) + dy * np.cos(angle))
+            side = radius / np.sqrt(2)
+            shape = np.where((ru < side) & (rv < side * rng.uniform(0.6, 1.0)), top + 0.05 * dx, 0.0)
+        elif kind == "cylinder":
+            shape = np.where(dx ** 2 + dy ** 2 < radius ** 2, top, 0.0)
+        elif kind == "dome":
+            shape = np.where(dx ** 2 + dy ** 2 < radius ** 2,
+                             top * 0.5 + np.sqrt(np.clip(radius ** 2 - dx ** 2 - dy ** 2, 0, None)) * top * 0.5 / radius, 0.0)
+        else:
+            r = np.sqrt(dx ** 2 + dy ** 2)
+            shape = np.where(r < radius, 12.0 + (top - 12.0) * (1 - r / radius), 0.0)
+        height = np.maximum(height, shape)
+    depth = _background_depth(rig, rng.uniform(-3, 3), rng.uniform(-3, 3)) - height
+    albedo = np.where(height > 0, _albedo(rng, X.shape, 0.7, 1.0), _albedo(rng, X.shape, 0.55, 0.8))
+    return Scene("objects", depth, albedo)
+
+
+def scene_from_file(rig: Rig, path, kind: str = "height") -> Scene:
+    """A user's map, one value per camera pixel, in millimetres: 'height' above the background plane
+    at the standoff (towards the camera) or 'depth' along the camera axis. Formats: .npy, 16-bit PNG,
+    TIFF; it is resized to the camera when its size differs."""
+    path = Path(path)
+    if kind not in ("height", "depth"):
+        raise SimulationError(f"map kind must be 'height' or 'depth', got {kind!r}")
+    if not path.is_file():
+        raise SimulationError(f"scene file {path} does not exist")
+    if path.suffix.lower() == ".npy":
+        try:
+            values = np.load(path, allow_pickle=False)
+        except (ValueError, OSError) as e:
+            raise SimulationError(f"cannot read {path} as a .npy array: {e}") from None
+    elif path.suffix.lower() in (".png", ".tif", ".tiff"):
+        values = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if values is None:
+            raise SimulationError(f"cannot decode image {path}")
+    else:
+        raise SimulationError(f"scene file {path} must be .npy, .png, .tif or .tiff")
+    values = np.asarray(values)
+    if values.ndim != 2 or values.dtype.kind not in "uif":
+        raise SimulationError(f"scene file {path} must hold one 2-D numeric map, got {values.dtype} {values.shape}")
+    values = values.astype(np.float64)
+    if not np.all(np.isfinite(values)):
+        raise SimulationError(f"scene file {path} has NaN or infinite values")
+    if values.shape != (rig.height, rig.width):
+        values = cv2.resize(values, (rig.width, rig.height), interpolation=cv2.INTER_LINEAR)
+    depth = _background_depth(rig) - values if kind == "height" else values
+    if depth.min() <= 0.1 * rig.standoff_mm:
+        raise SimulationError(f"scene file {path} puts the surface at {depth.min():.1f} mm, too close to the camera")
+    return Scene(path.stem, depth, np.full(depth.shape, 0.9))
+
+
+SCENE_KINDS = ("sculpture", "objects", "plane")
+
+
+def make_scene(rig: Rig, kind: str, seed: int = 0, depth_mm: float | None = None) -> Scene:
+    """A procedural scene by name, or a height map file when kind is a path."""
+    rng = np.random.default_rng(seed)
+    if kind == "sculpture":
+        return sculpture_scene(rig, rng)
+    if kind == "objects":
+        return objects_scene(rig, rng)
+    if kind == "plane":
+        return plane_scene(rig, rig.standoff_mm if depth_mm is None else depth_mm)
+    return scene_from_file(rig, kind)
+
+
+# ---------------------------------------------------------------- rendering
+
+def projector_shadow(rig: Rig, depth: np.ndarray, step_px: float = 0.5, tolerance_mm: float = 0.1) -> np.ndarray:
+    """Pixels whose surface point cannot see the projector.
+
+    March from each point towards the projector centre until the ray is nearer than the nearest
+    surface; the point is shadowed if a sample lies behind the surface the camera sees there.
+    """
+    cam = rig.camera()
+    x, y = cam.rays()
+    points = np.stack([x * depth, y * depth, depth], axis=-1)
+    to_projector = rig.projector_center - points
+    t_max = (depth - depth.min()) / (depth - rig.projector_center[2])
+    far = points + t_max[..., None] * to_projector
+    reach_px = cam.fx * np.abs(far[..., 0] / far[..., 2] - x)
+    steps = int(np.ceil(reach_px.max() / step_px))
+    surface = depth.astype(np.float32)
+    shadow = np.zeros(depth.shape, bool)
+    for s in np.arange(1, steps + 1) / max(steps, 1):
+        q = points + (s * t_max)[..., None] * to_projector
+        uq = (cam.fx * q[..., 0] / q[..., 2] + cam.cx).astype(np.float32)
+        vq = (cam.fy * q[..., 1] / q[..., 2] + cam.cy).astype(np.float32)
+        seen = cv2.remap(surface, uq, vq, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.inf)
+        moved = reach_px * s >= 1.0  # samples within a pixel of the point see the point itself
+        shadow |= moved & (q[..., 2] > seen + tolerance_mm)
+    return shadow
+
+
+def render(rig: Rig, scene: Scene, patterns: PatternSet, rng: np.random.Generator | None = None) -> Capture:
+    """The images the camera captures of the scene under each pattern, with the exact ground truth.
+
+    Camera level = full_scale * (ambient + gain * albedo * (pattern / max) ** projector_gamma), then
+    defocus blur, Gaussian noise (noise_sigma counts; skipped when rng is None), rounding and clipping.
+    """
+    check_patterns(rig, patterns)
+    depth = np.asarray(scene.depth_mm, np.float64)
+    if depth.shape != (rig.height, rig.width):
+        raise SimulationError(f"scene is {depth.shape[1]}x{depth.shape[0]} but the camera is {rig.width}x{rig.height}")
+    x, y = rig.camera().rays()
+    points = np.stack([x * depth, y * depth, depth], axis=-1)
+    xp, yp, zp = rig.to_projector(points)
+    inside = (zp > 0) & (xp >= -0.5) & (xp <= rig.projector_width - 0.5) & (yp >= -0.5) & (yp <= rig.projector_height - 0.5)
+    lit = inside & ~projector_shadow(rig, depth)
+    coord = xp if patterns.orientation == "vertical" else yp
+    full = rig.full_scale
+    dtype = np.uint8 if rig.camera_bit_depth == 8 else np.uint16
+    images = np.empty((patterns.count, rig.height, rig.width), dtype)
+    reflect = rig.gain * scene.albedo * lit
+    for i, (f, j) in enumerate(patterns.order()):
+        radiance = (fringe_value(patterns, f, j, coord) / patterns.max_value) ** rig.projector_gamma
+        level = full * (rig.ambient + reflect * radiance)
+        if rig.blur_sigma_px > 0:
+            level = cv2.GaussianBlur(level, (0, 0), rig.blur_sigma_px)
+        if rng is not None and rig.noise_sigma > 0:
+            level += rng.normal(0.0, rig.noise_sigma, level.shape)
+        images[i] = np.clip(np.rint(level), 0, full)
+    return Capture(images, depth, lit, coord)

@@ -1,0 +1,90 @@
+"""The steps a user strings together, as functions: calibrate from planes, and the simulated
+calibrate-then-measure experiment behind the demo, the tests and the README's numbers."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .calibration import Calibration, CalibrationError, CameraIntrinsics, fit_rational_model
+from .metrics import DepthErrors, depth_errors, noise_limited_depth_std
+from .patterns import PatternSet
+from .reconstruct import QualityLimits, Reconstruction, multi_frequency_phase
+from .simulation import Rig, make_scene, plane_scene, render
+
+CALIBRATION_DEPTHS_MM = (1100.0, 1150.0, 1200.0, 1250.0, 1300.0)
+
+
+def calibrate_from_planes(stacks, depths_mm, camera: CameraIntrinsics, patterns: PatternSet,
+                          reference_depth_mm: float | None = None, sample_step: int = 4,
+                          limits: QualityLimits = QualityLimits()):
+    """Fit the rational model from fringe stacks of flat planes square to the camera at known depths
+    (a plate on a translation stage). Returns (calibration, fit RMSE in mm per plane).
+
+    Every sample_step-th trusted pixel of every plane is a sample (u, v, phi, z).
+    """
+    if len(stacks) != len(depths_mm):
+        raise CalibrationError(f"{len(stacks)} captures but {len(depths_mm)} depths")
+    if len(set(depths_mm)) < 3:
+        raise CalibrationError(f"need planes at three or more different depths, got {sorted(set(depths_mm))}")
+    samples = []
+    for images, z in zip(stacks, depths_mm):
+        images = np.asarray(images)
+        if images.shape[1:] != (camera.height, camera.width):
+            raise CalibrationError(f"plane at {z} mm: images are {images.shape[2]}x{images.shape[1]}, "
+                                   f"the camera is {camera.width}x{camera.height}")
+        phase, valid, _ = multi_frequency_phase(images, patterns, limits)
+        v, u = np.nonzero(valid)
+        if u.size < 100:
+            raise CalibrationError(f"plane at {z} mm: only {u.size} usable pixels (no fringes visible?)")
+        keep = slice(None, None, sample_step)
+        samples.append((u[keep], v[keep], phase[valid][keep], np.full(u[keep].size, float(z))))
+    u, v, phase, depth = (np.concatenate(parts) for parts in zip(*samples))
+    model = fit_rational_model(u, v, phase, depth)
+    residuals = [float(np.sqrt(np.mean((model.depth(p, uu, vv) - z) ** 2))) for uu, vv, p, z in samples]
+    reference = float(np.median(depths_mm)) if reference_depth_mm is None else float(reference_depth_mm)
+    return Calibration(camera, model, patterns, reference), residuals
+
+
+def simulated_calibration(rig: Rig, patterns: PatternSet, seed: int = 0,
+                          depths_mm=CALIBRATION_DEPTHS_MM) -> tuple[Calibration, list[float]]:
+    """Calibrate the simulated rig the way a user calibrates a real one: render noisy planes, fit."""
+    rng = np.random.default_rng(seed)
+    stacks = [render(rig, plane_scene(rig, z), patterns, rng).images for z in depths_mm]
+    return calibrate_from_planes(stacks, list(depths_mm), rig.camera(), patterns)
+
+
+@dataclass
+class SceneResult:
+    scene: str
+    errors: DepthErrors
+    noise_limited_rmse_mm: float
+
+
+def fringe_depth_mm(calibration: Calibration, phase: np.ndarray) -> np.ndarray:
+    """Depth spanned by one fringe period of the highest frequency at every pixel."""
+    u = np.arange(phase.shape[1], dtype=np.float64)[None, :]
+    v = np.arange(phase.shape[0], dtype=np.float64)[:, None]
+    return np.abs(calibration.model.depth_per_radian(phase, u, v)) * 2.0 * np.pi
+
+
+def score(rec: Reconstruction, truth_depth, truth_valid, calibration: Calibration, noise_sigma: float,
+          name: str) -> SceneResult:
+    """Errors against ground truth, and the RMSE that camera noise alone causes in a phase-shifting
+    reconstruction with this modulation (metrics.noise_limited_depth_std, with the camera's rounding
+    adding 1/12 count^2 of variance to noise_sigma^2)."""
+    errors = depth_errors(rec.depth_mm, truth_depth, truth_valid, fringe_depth_mm(calibration, rec.phase))
+    u = np.arange(rec.phase.shape[1], dtype=np.float64)[None, :]
+    v = np.arange(rec.phase.shape[0], dtype=np.float64)[:, None]
+    mask = np.isfinite(rec.depth_mm) & truth_valid & (rec.quality > 0)
+    std = noise_limited_depth_std(rec.quality[mask], calibration.model.depth_per_radian(rec.phase, u, v)[mask],
+                                  calibration.patterns.steps, np.sqrt(noise_sigma ** 2 + 1.0 / 12.0))
+    return SceneResult(name, errors, float(np.sqrt(np.mean(std ** 2))) if std.size else float("nan"))
+
+
+def held_out_scenes(rig: Rig, count: int, first_seed: int = 1000):
+    """Scenes no calibration or training ever sees: alternately one sculpture and separated objects."""
+    for i in range(count):
+        kind = ("sculpture", "objects")[i % 2]
+        seed = first_seed + i
+        yield f"{kind}-{seed}", make_scene(rig, kind, seed), seed

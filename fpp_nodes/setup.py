@@ -1,0 +1,24 @@
+from setuptools import find_packages, setup
+
+package_name = "fpp_nodes"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="FPP sensor team",
+    maintainer_email="fpp@example.com",
+    description="Fringe projection profilometry core and offline tool",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "fpp = fpp_nodes.cli:main",
+        ],
+    },
+)

@@ -1,0 +1,44 @@
+import numpy as np
+import pytest
+
+from fpp_nodes.core.patterns import PatternError, PatternSet, generate_patterns
+
+
+def test_equation_1_values_and_order():
+    p = PatternSet(frequencies=(1, 4), steps=4, width=64, height=8, gamma=1.0)
+    pats = generate_patterns(p)
+    assert pats.shape == (8, 8, 64) and pats.dtype == np.uint8
+    x = np.arange(64)
+    for i, (f, j) in enumerate(p.order()):
+        expected = np.round(255 * 0.5 * (1 + np.cos(2 * np.pi * f * x / 64 + 2 * np.pi * j / 4)))
+        np.testing.assert_array_equal(pats[i, 3], expected)
+        assert np.all(pats[i] == pats[i, 0])  # vertical fringes: every row is the same
+
+
+def test_horizontal_16_bit_any_resolution_and_steps():
+    p = PatternSet(frequencies=(1, 3, 9), steps=5, width=37, height=50, orientation="horizontal", bit_depth=16, gamma=1.0)
+    pats = generate_patterns(p)
+    assert pats.shape == (15, 50, 37) and pats.dtype == np.uint16
+    assert np.all(pats[7] == pats[7][:, :1])  # horizontal fringes: constant along a row
+    assert pats.max() == 65535
+
+
+def test_gamma_precompensation_makes_the_light_sinusoidal():
+    p = PatternSet(frequencies=(1,), steps=4, width=1000, height=2, bit_depth=16, gamma=2.2)
+    light = (generate_patterns(p)[0, 0] / 65535.0) ** 2.2
+    expected = 0.5 * (1 + np.cos(2 * np.pi * np.arange(1000) / 1000))
+    assert np.abs(light - expected).max() < 1e-3
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(steps=2), "steps must be >= 3"),
+    (dict(frequencies=(1, 20, 4)), "strictly increasing"),
+    (dict(frequencies=(4, 20)), "first frequency must be 1"),
+    (dict(frequencies=(1, 700)), "projector pixels"),
+    (dict(orientation="diagonal"), "orientation"),
+    (dict(bit_depth=12), "bit_depth"),
+    (dict(gamma=0.0), "gamma"),
+])
+def test_invalid_pattern_sets_are_refused_with_the_reason(kwargs, message):
+    with pytest.raises(PatternError, match=message):
+        PatternSet(**kwargs)

@@ -1,0 +1,82 @@
+import numpy as np
+import pytest
+
+from fpp_nodes.core.phase import (PhaseError, ftp_wrapped_phase, phase_shift, unwrap_spatial, unwrap_temporal,
+                                  wrapped_phase)
+
+TWO_PI = 2 * np.pi
+
+
+def fringes(phi, a, b, n):
+    return np.stack([a + b * np.cos(phi + TWO_PI * j / n) for j in range(n)])
+
+
+def angle_error(a, b):
+    return np.abs(np.angle(np.exp(1j * (a - b))))
+
+
+@pytest.mark.parametrize("n", [3, 4, 5, 8])
+def test_noise_free_wrapped_phase_is_exact(n):
+    rng = np.random.default_rng(n)
+    phi = rng.uniform(0, TWO_PI, (40, 50))
+    a, b = rng.uniform(50, 100, phi.shape), rng.uniform(5, 50, phi.shape)
+    maps = phase_shift(fringes(phi, a, b, n))
+    assert angle_error(maps.phase, phi).max() < 1e-6
+    assert maps.phase.min() >= 0 and maps.phase.max() < TWO_PI
+    np.testing.assert_allclose(maps.modulation, b, rtol=1e-9)
+    np.testing.assert_allclose(maps.background, a, rtol=1e-9)
+
+
+def test_eight_bit_images_give_float32_phase_within_rounding():
+    phi = np.linspace(0, TWO_PI, 640, endpoint=False)[None, :].repeat(4, 0)
+    imgs = np.rint(fringes(phi, 120.0, 100.0, 4)).astype(np.uint8)
+    est = wrapped_phase(imgs)
+    assert est.dtype == np.float32
+    # rounding to integers moves the phase by at most about sqrt(2)*0.5/100 rad
+    assert angle_error(est, phi).max() < 0.008
+
+
+def test_temporal_unwrapping_recovers_absolute_phase_and_flags_bad_orders():
+    freqs = (1, 4, 20, 100)
+    x = np.linspace(0.02, 0.98, 5000)[None, :]  # one fringe wraps at the projector edges
+    rng = np.random.default_rng(0)
+    wrapped = [np.mod(TWO_PI * f * x + rng.normal(0, 0.02, x.shape), TWO_PI) for f in freqs]
+    phase, ok = unwrap_temporal(wrapped, freqs)
+    assert ok.all()
+    assert np.abs(phase - TWO_PI * 100 * x).max() < 0.1
+    # corrupt the 20-fringe phase by half a fringe at a few pixels: they must be flagged
+    bad = wrapped[2].copy()
+    bad[0, ::500] = np.mod(bad[0, ::500] + np.pi, TWO_PI)
+    _, ok = unwrap_temporal(wrapped[:2] + [bad] + wrapped[3:], freqs)
+    assert not ok[0, ::500].any() and ok.sum() == ok.size - 10
+
+
+def test_temporal_unwrapping_needs_one_fringe_first():
+    with pytest.raises(PhaseError, match="one fringe"):
+        unwrap_temporal([np.zeros((2, 2))] * 2, (4, 20))
+
+
+def test_spatial_unwrapping_of_a_smooth_phase_is_exact_up_to_a_constant():
+    v, u = np.mgrid[0:120, 0:161]
+    true = 0.15 * u + 0.002 * (v - 60) ** 2 + 3 * np.sin(u / 30.0)
+    got = unwrap_spatial(np.mod(true, TWO_PI))
+    offset = got - true
+    assert np.abs(offset - offset[0, 0]).max() < 1e-9
+    assert abs(offset[0, 0] / TWO_PI - round(offset[0, 0] / TWO_PI)) < 1e-9
+
+
+def test_ftp_recovers_a_tilted_carrier():
+    v, u = np.mgrid[0:128, 0:256]
+    phi = TWO_PI * 20 * u / 256 + 0.5 * np.sin(v / 20.0)
+    img = 100 + 80 * np.cos(phi)
+    est, amp = ftp_wrapped_phase(img)
+    inner = (slice(10, -10), slice(10, -10))
+    assert angle_error(est, phi)[inner].max() < 0.02
+    assert np.abs(amp[inner] - 80).max() < 4
+
+
+def test_bad_stacks_are_refused():
+    with pytest.raises(PhaseError, match="N >= 3"):
+        wrapped_phase(np.zeros((2, 4, 4)))
+    with pytest.raises(PhaseError, match="real numbers"):
+        wrapped_phase(np.zeros((4, 4, 4), complex))
