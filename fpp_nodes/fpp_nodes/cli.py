@@ -47,7 +47,7 @@ def cmd_simulate(args) -> None:
     rig = _rig(args)
     patterns = rig.pattern_set()
     out = Path(args.out)
-    for i in tqdm(range(args.count), desc="simulate", disable=args.count == 1):
+    for i in tqdm(range(args.count), desc="simulate", disable=None):
         seed = args.seed + i
         if args.scene in SCENE_KINDS:
             scene = make_scene(rig, args.scene, seed, args.depth)
@@ -75,7 +75,7 @@ def _read_sensor(path) -> tuple[CameraIntrinsics, PatternSet]:
 def cmd_calibrate(args) -> None:
     camera, patterns = _read_sensor(args.sensor)
     stacks, depths = [], []
-    for item in tqdm(args.planes, desc="read planes"):
+    for item in tqdm(args.planes, desc="read planes", disable=None):
         folder, sep, depth = item.rpartition(":")
         if not sep:
             raise CalibrationError(f"plane {item!r} must be FOLDER:DEPTH_MM")
@@ -140,7 +140,7 @@ def cmd_demo(args) -> None:
     print("  fit RMSE per plane (um): " + ", ".join(f"{r * 1000:.1f}" for r in residuals))
     psp = PspReconstructor(calibration)
     rows = []
-    for name, scene, seed in tqdm(list(held_out_scenes(rig, args.scenes, args.seed + 1000)), desc="scenes"):
+    for name, scene, seed in tqdm(list(held_out_scenes(rig, args.scenes, args.seed + 1000)), desc="scenes", disable=None):
         capture = render(rig, scene, patterns, np.random.default_rng(seed))
         start = time.perf_counter()
         multi = psp(capture.images)

@@ -28,7 +28,7 @@ class QualityLimits:
     depth differs from a 4-neighbour's by more than max_depth_step_mm mixes two surfaces (a flying
     pixel at an edge) and is dropped with that neighbour."""
 
-    min_modulation: float = 0.03
+    min_modulation: float = 0.05
     max_order_residual: float = np.pi / 2
     max_depth_step_mm: float = 2.0
 
@@ -85,6 +85,19 @@ def multi_frequency_phase(images: np.ndarray, patterns: PatternSet, limits: Qual
     return phase.astype(np.float32, copy=False), valid, modulation.astype(np.float32, copy=False)
 
 
+_CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+
+
+def trusted_depth(depth: np.ndarray, valid: np.ndarray, max_step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Set depth to NaN (in place) where it is not to be trusted: invalid pixels, their 4-neighbours
+    (defocus carries fringes from across a shadow edge into them), and flying pixels."""
+    valid = cv2.erode(valid.astype(np.uint8), _CROSS).view(bool)
+    depth[~valid] = np.nan
+    valid = drop_flying_pixels(depth, max_step)
+    depth[~valid] = np.nan
+    return depth, valid
+
+
 class PspReconstructor:
     """The multi-shot path for one calibration; per-pixel model terms are computed once, here.
 
@@ -120,10 +133,7 @@ class PspReconstructor:
         num += self._ca
         den = cv2.multiply(self._db, phase)
         den += self._da
-        depth = cv2.divide(num, den)
-        depth[~valid] = np.nan
-        valid = drop_flying_pixels(depth, self.limits.max_depth_step_mm)
-        depth[~valid] = np.nan
+        depth, valid = trusted_depth(cv2.divide(num, den), valid, self.limits.max_depth_step_mm)
         return Reconstruction(depth, back_project(depth, self.calibration.camera), valid, quality, phase)
 
 
@@ -150,9 +160,6 @@ def reconstruct_ftp(image: np.ndarray, calibration: Calibration, limits: Quality
     phase = unwrap_spatial(wrapped)
     phase += TWO_PI * np.rint(np.median(reference - phase) / TWO_PI)
     valid = amplitude >= limits.min_modulation * full_scale(image.dtype)
-    depth = cal.model.depth(phase, u, v).astype(np.float32)
-    depth[~valid] = np.nan
-    valid = drop_flying_pixels(depth, limits.max_depth_step_mm)
-    depth[~valid] = np.nan
+    depth, valid = trusted_depth(cal.model.depth(phase, u, v).astype(np.float32), valid, limits.max_depth_step_mm)
     return Reconstruction(depth, back_project(depth, cal.camera), valid, amplitude.astype(np.float32),
                           phase.astype(np.float32))

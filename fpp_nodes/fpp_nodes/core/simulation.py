@@ -289,13 +289,13 @@ def make_scene(rig: Rig, kind: str, seed: int = 0, depth_mm: float | None = None
 
 # ---------------------------------------------------------------- rendering
 
-def projector_shadow(rig: Rig, depth: np.ndarray, step_px: float = 0.5, tolerance_mm: float = 0.1) -> np.ndarray:
+def projector_shadow(rig: Rig, depth: np.ndarray, cam: CameraIntrinsics, step_px: float = 0.5,
+                     tolerance_mm: float = 0.1) -> np.ndarray:
     """Pixels whose surface point cannot see the projector.
 
     March from each point towards the projector centre until the ray is nearer than the nearest
     surface; the point is shadowed if a sample lies behind the surface the camera sees there.
     """
-    cam = rig.camera()
     x, y = cam.rays()
     points = np.stack([x * depth, y * depth, depth], axis=-1)
     to_projector = rig.projector_center - points
@@ -325,22 +325,31 @@ def render(rig: Rig, scene: Scene, patterns: PatternSet, rng: np.random.Generato
     depth = np.asarray(scene.depth_mm, np.float64)
     if depth.shape != (rig.height, rig.width):
         raise SimulationError(f"scene is {depth.shape[1]}x{depth.shape[0]} but the camera is {rig.width}x{rig.height}")
-    x, y = rig.camera().rays()
+    # Render a margin beyond the image (the scene's border extended) so that the blur near the
+    # border mixes in what a real lens would, not a mirror image of the fringes.
+    m = int(np.ceil(4 * rig.blur_sigma_px))
+    cam = rig.camera()
+    canvas = CameraIntrinsics(cam.width + 2 * m, cam.height + 2 * m, cam.fx, cam.fy, cam.cx + m, cam.cy + m)
+    depth = cv2.copyMakeBorder(depth, m, m, m, m, cv2.BORDER_REPLICATE)
+    albedo = cv2.copyMakeBorder(np.asarray(scene.albedo, np.float64), m, m, m, m, cv2.BORDER_REPLICATE)
+    x, y = canvas.rays()
     points = np.stack([x * depth, y * depth, depth], axis=-1)
     xp, yp, zp = rig.to_projector(points)
     inside = (zp > 0) & (xp >= -0.5) & (xp <= rig.projector_width - 0.5) & (yp >= -0.5) & (yp <= rig.projector_height - 0.5)
-    lit = inside & ~projector_shadow(rig, depth)
+    lit = inside & ~projector_shadow(rig, depth, canvas)
     coord = xp if patterns.orientation == "vertical" else yp
     full = rig.full_scale
     dtype = np.uint8 if rig.camera_bit_depth == 8 else np.uint16
     images = np.empty((patterns.count, rig.height, rig.width), dtype)
-    reflect = rig.gain * scene.albedo * lit
+    reflect = rig.gain * albedo * lit
+    crop = (slice(m, m + rig.height), slice(m, m + rig.width))
     for i, (f, j) in enumerate(patterns.order()):
         radiance = (fringe_value(patterns, f, j, coord) / patterns.max_value) ** rig.projector_gamma
         level = full * (rig.ambient + reflect * radiance)
         if rig.blur_sigma_px > 0:
             level = cv2.GaussianBlur(level, (0, 0), rig.blur_sigma_px)
+        level = level[crop]
         if rng is not None and rig.noise_sigma > 0:
             level += rng.normal(0.0, rig.noise_sigma, level.shape)
         images[i] = np.clip(np.rint(level), 0, full)
-    return Capture(images, depth, lit, coord)
+    return Capture(images, depth[crop], lit[crop], coord[crop])

@@ -1,0 +1,98 @@
+import numpy as np
+import pytest
+import yaml
+
+from fpp_nodes.core.calibration import Calibration, CalibrationError, RationalModel, back_project
+from fpp_nodes.core.phase import unwrap_temporal, wrapped_phase
+from fpp_nodes.core.simulation import plane_scene, render
+from fpp_nodes.core.workflow import calibrate_from_planes
+
+
+def test_rig_model_maps_phase_back_to_depth(ideal_rig, ideal_patterns, pixel_grid):
+    model = ideal_rig.true_model(ideal_patterns)
+    u, v = pixel_grid((ideal_rig.height, ideal_rig.width))
+    for z in (1100.0, 1200.0, 1290.0):
+        phase = model.phase_at_depth(z, u, v)
+        np.testing.assert_allclose(model.depth(phase, u, v), z, rtol=1e-12)
+    capture = render(ideal_rig, plane_scene(ideal_rig, 1150.0), ideal_patterns)
+    expected = 2 * np.pi * 100 * capture.projector_coord / ideal_patterns.width
+    np.testing.assert_allclose(model.phase_at_depth(1150.0, u, v), expected, atol=1e-9)
+
+
+def test_calibration_from_noise_free_planes_recovers_the_rendering_coefficients(ideal_rig, ideal_patterns, pixel_grid):
+    stacks = [render(ideal_rig, plane_scene(ideal_rig, z), ideal_patterns).images for z in (1100, 1150, 1200, 1250, 1300)]
+    calibration, residuals = calibrate_from_planes(stacks, [1100, 1150, 1200, 1250, 1300], ideal_rig.camera(), ideal_patterns)
+    true = ideal_rig.true_model(ideal_patterns)
+    fitted = calibration.model
+    # compare every term at its largest value in the image, relative to the whole numerator/denominator
+    u, v = 639.0, 479.0
+    phi = 2 * np.pi * 100
+    size = np.abs([1, phi, u, u * phi, v, v * phi, u * u, u * u * phi, v * v, v * v * phi, u * v, u * v * phi])
+    assert np.max(np.abs(fitted.c - true.c) * size) < 1e-5 * np.sum(np.abs(true.c) * size)
+    assert np.max(np.abs(fitted.d - true.d) * size) < 1e-5 * np.sum(np.abs(true.d) * size)
+    assert max(residuals) < 1e-3  # mm
+
+
+def test_calibration_of_the_noisy_rig_predicts_depth_to_micrometres(rig, patterns, calibration, pixel_grid):
+    true = rig.true_model(patterns)
+    u, v = pixel_grid((rig.height, rig.width))
+    for z in (1080.0, 1200.0, 1320.0):  # inside and a little beyond the calibrated planes
+        assert np.abs(calibration.model.depth(true.phase_at_depth(z, u, v), u, v) - z).max() < 0.02
+
+
+def test_calibration_file_round_trips(calibration, tmp_path):
+    path = tmp_path / "cal.yaml"
+    calibration.save(path)
+    loaded = Calibration.load(path)
+    np.testing.assert_array_equal(loaded.model.c, calibration.model.c)
+    np.testing.assert_array_equal(loaded.model.d, calibration.model.d)
+    assert loaded.patterns == calibration.patterns and loaded.camera == calibration.camera
+    assert yaml.safe_load(path.read_text())["version"] == 1
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.pop("model"), "missing model"),
+    (lambda d: d["camera"].pop("fx"), "missing 'fx'"),
+    (lambda d: d.update(version=99), "version 99"),
+    (lambda d: d.update(format="something"), "not a calibration file"),
+    (lambda d: d["model"].update(c=[1.0, 2.0]), "12 \\+ 12"),
+    (lambda d: d["model"]["d"].__setitem__(3, "x"), "malformed"),
+    (lambda d: d["patterns"].update(steps=2), "steps must be >= 3"),
+    (lambda d: d["camera"].update(fx=-5), "focal lengths"),
+])
+def test_malformed_calibration_files_are_clear_errors(calibration, tmp_path, edit, message):
+    data = calibration.to_dict()
+    edit(data)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(CalibrationError, match=message):
+        Calibration.load(path)
+
+
+def test_unreadable_calibration_files_are_clear_errors(tmp_path):
+    with pytest.raises(CalibrationError, match="cannot read"):
+        Calibration.load(tmp_path / "missing.yaml")
+    (tmp_path / "bad.yaml").write_text("camera: [unclosed")
+    with pytest.raises(CalibrationError, match="not valid YAML"):
+        Calibration.load(tmp_path / "bad.yaml")
+    (tmp_path / "list.yaml").write_text("- 1\n- 2\n")
+    with pytest.raises(CalibrationError, match="not a YAML mapping"):
+        Calibration.load(tmp_path / "list.yaml")
+
+
+def test_model_refuses_wrong_coefficients():
+    with pytest.raises(CalibrationError, match="c0 must be 1"):
+        RationalModel(np.r_[2.0, np.zeros(11)], np.ones(12))
+    with pytest.raises(CalibrationError, match="finite"):
+        RationalModel(np.r_[1.0, np.full(11, np.nan)], np.ones(12))
+
+
+def test_back_projection_follows_the_optical_frame(calibration):
+    cam = calibration.camera
+    depth = np.full((cam.height, cam.width), 1000.0, np.float32)
+    depth[0, 0] = np.nan
+    xyz = back_project(depth, cam)
+    assert np.isnan(xyz[0, 0]).all()
+    np.testing.assert_allclose(xyz[-1, -1], [1000 * (cam.width - 1 - cam.cx) / cam.fx,
+                                             1000 * (cam.height - 1 - cam.cy) / cam.fy, 1000], rtol=1e-6)
+    assert xyz[240, 639, 0] > 0 and xyz[479, 320, 1] > 0  # x right, y down

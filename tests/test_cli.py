@@ -1,0 +1,119 @@
+"""The offline `fpp` tool as a user runs it: a subprocess, files in, files out, one-line errors."""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+
+def fpp(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "fpp_nodes", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    """Planes for calibration, a calibration, and one held-out scene, made with the tool itself."""
+    d = tmp_path_factory.mktemp("fpp")
+    for z in (1100, 1200, 1300):
+        r = fpp("simulate", "--scene", "plane", "--depth", z, "--seed", z, "--out", d / f"plane{z}")
+        assert r.returncode == 0, r.stderr
+    r = fpp("calibrate", *(f"{d}/plane{z}:{z}" for z in (1100, 1200, 1300)), "--sensor", d / "plane1200" / "sensor.yaml",
+            "--out", d / "cal.yaml")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.count("fit RMSE") == 3
+    r = fpp("simulate", "--scene", "objects", "--seed", 5, "--out", d / "scene")
+    assert r.returncode == 0, r.stderr
+    return d
+
+
+def test_simulate_writes_images_and_ground_truth(workdir):
+    scene = workdir / "scene"
+    assert len(list(scene.glob("fringe_*.png"))) == 16
+    assert np.load(scene / "depth_gt_mm.npy").shape == (480, 640)
+    assert cv2.imread(str(scene / "fringe_00.png"), cv2.IMREAD_UNCHANGED).dtype == np.uint8
+    for name in ("sensor.yaml", "capture.yaml", "valid_gt.png"):
+        assert (scene / name).is_file()
+
+
+@pytest.mark.parametrize("method, bound", [("psp", 0.06), ("ftp", None)])
+def test_reconstruct_and_evaluate(workdir, method, bound):
+    out = workdir / f"out_{method}"
+    r = fpp("reconstruct", workdir / "scene", "--calibration", workdir / "cal.yaml", "--method", method, "--out", out)
+    assert r.returncode == 0, r.stderr
+    for name in ("depth_mm.npy", "depth_mm.tiff", "points.ply", "depth.png"):
+        assert (out / name).is_file()
+    assert (out / "points.ply").read_bytes().startswith(b"ply\nformat binary_little_endian 1.0\nelement vertex ")
+    tiff = cv2.imread(str(out / "depth_mm.tiff"), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(np.isnan(tiff), np.isnan(np.load(out / "depth_mm.npy")))
+    r = fpp("evaluate", out / "depth_mm.npy", workdir / "scene" / "depth_gt_mm.npy", "--valid", workdir / "scene" / "valid_gt.png")
+    assert r.returncode == 0, r.stderr
+    rmse = float(r.stdout.split()[1])
+    if bound:
+        assert rmse < bound
+    else:
+        assert rmse > 1.0  # FTP cannot unwrap the steps of this scene
+
+
+def test_reconstruct_also_reads_real_captures_as_a_list_of_files(workdir, tmp_path):
+    """A real camera's 16-bit TIFFs, given as files in projection order."""
+    files = []
+    for i, p in enumerate(sorted((workdir / "scene").glob("fringe_*.png"))):
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.uint16) * 257
+        files.append(tmp_path / f"capture_{i:02d}.tif")
+        cv2.imwrite(str(files[-1]), img)
+    r = fpp("reconstruct", *files, "--calibration", workdir / "cal.yaml", "--out", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+    depth = np.load(tmp_path / "out" / "depth_mm.npy")
+    truth = np.load(workdir / "scene" / "depth_gt_mm.npy")
+    ok = np.isfinite(depth) & (cv2.imread(str(workdir / "scene" / "valid_gt.png"), cv2.IMREAD_GRAYSCALE) > 0)
+    assert ok.mean() > 0.9 and np.sqrt(np.mean((depth - truth)[ok] ** 2)) < 0.06
+
+
+def bad_inputs(workdir, tmp_path):
+    scene = workdir / "scene"
+    cal = workdir / "cal.yaml"
+    few = tmp_path / "few"
+    few.mkdir()
+    for p in sorted(scene.glob("fringe_*.png"))[:15]:
+        (few / p.name).write_bytes(p.read_bytes())
+    small = tmp_path / "small"
+    small.mkdir()
+    for p in sorted(scene.glob("fringe_*.png")):
+        cv2.imwrite(str(small / p.name), cv2.imread(str(p))[:240, :320])
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for p in sorted(scene.glob("fringe_*.png")):
+        (broken / p.name).write_bytes(p.read_bytes()[:200])
+    bad_cal = tmp_path / "bad.yaml"
+    bad_cal.write_text(cal.read_text().replace("fx:", "fy_typo:", 1))
+    return [
+        (("reconstruct", few, "--calibration", cal, "--out", tmp_path / "o"), "expected 16 images"),
+        (("reconstruct", small, "--calibration", cal, "--out", tmp_path / "o"), "640x480"),
+        (("reconstruct", broken, "--calibration", cal, "--out", tmp_path / "o"), "cannot read image"),
+        (("reconstruct", tmp_path / "nothing", "--calibration", cal, "--out", tmp_path / "o"), "does not exist"),
+        (("reconstruct", scene, "--calibration", bad_cal, "--out", tmp_path / "o"), "missing 'fx'"),
+        (("reconstruct", scene, "--calibration", tmp_path / "none.yaml", "--out", tmp_path / "o"), "cannot read calibration"),
+        (("reconstruct", scene, "--calibration", cal, "--min-modulation", "-1", "--out", tmp_path / "o"), "min_modulation"),
+        (("calibrate", f"{scene}:1200", "--sensor", scene / "sensor.yaml"), "three or more different depths"),
+        (("calibrate", f"{scene}:abc", "--sensor", scene / "sensor.yaml"), "not a number"),
+        (("evaluate", tmp_path / "none.npy", scene / "depth_gt_mm.npy"), "cannot read"),
+        (("simulate", "--scene", tmp_path / "none.npy", "--out", tmp_path / "o"), "does not exist"),
+    ]
+
+
+def test_bad_input_is_one_line_and_a_non_zero_exit(workdir, tmp_path):
+    for args, message in bad_inputs(workdir, tmp_path):
+        r = fpp(*args)
+        assert r.returncode == 2, (args, r.stderr)
+        assert "Traceback" not in r.stderr, r.stderr
+        lines = [line for line in r.stderr.splitlines() if line.strip()]
+        assert len(lines) == 1 and message in lines[0], (args, r.stderr)
+
+
+def test_core_imports_without_ros():
+    code = "import sys, fpp_nodes.cli, fpp_nodes.core.workflow; assert not any(m.startswith('rclpy') for m in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
