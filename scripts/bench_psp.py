@@ -1,0 +1,107 @@
+"""Multi-shot speed and accuracy at 640x480 against OpenCV contrib's structured_light PSP.
+
+Run it with `make bench` (it makes .venv-opencv with opencv-contrib-python-headless, which cannot share
+a virtual environment with opencv-python-headless). Both methods run in this one process on the same
+simulated scenes and the same cv2 build, so their times can be compared as a ratio.
+
+  ours:   16 images (4 steps x frequencies 1, 4, 20, 100) -> temporal unwrapping -> depth + XYZ
+  OpenCV: 3 images (3 steps at 100 fringes, what its PSP decodes) of the same scene ->
+          computePhaseMap + unwrapPhaseMap (spatial); no depth. For its error we give it an oracle:
+          the global sign and 2 pi k offset that best match the true phase, then our calibration's
+          depth model.
+
+Errors: RMSE in mm over pixels valid in the method's mask and lit in the ground truth; order errors
+are pixels off by more than half a fringe in depth.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fpp_nodes"))
+from fpp_nodes.core.metrics import depth_errors  # noqa: E402
+from fpp_nodes.core.reconstruct import PspReconstructor  # noqa: E402
+from fpp_nodes.core.simulation import Rig, make_scene, render  # noqa: E402
+from fpp_nodes.core.workflow import fringe_depth_mm, simulated_calibration  # noqa: E402
+
+
+def timed(fn, repeat):
+    fn()  # warm up
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - start)
+    return result, np.array(times) * 1000
+
+
+def opencv_psp(rig: Rig, patterns_top: int):
+    params = cv2.structured_light_SinusoidalPattern_Params()
+    params.width, params.height = rig.projector_width, rig.projector_height
+    params.nbrOfPeriods = patterns_top
+    params.methodId = cv2.structured_light.PSP
+    params.horizontal = False
+    params.setMarkers = False
+    return cv2.structured_light.SinusoidalPattern_create(params)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeat", type=int, default=30)
+    parser.add_argument("--scenes", default="plane:0,sculpture:1,objects:2")
+    args = parser.parse_args()
+    if not hasattr(cv2, "structured_light"):
+        sys.exit("this cv2 has no structured_light module: run with .venv-opencv (make bench)")
+
+    rig = Rig()
+    patterns = rig.pattern_set()
+    three_step = rig.pattern_set(frequencies=(1, patterns.frequencies[-1]), steps=3)
+    calibration, _ = simulated_calibration(rig, patterns, seed=0)
+    ours = PspReconstructor(calibration)
+    sinus = opencv_psp(rig, patterns.frequencies[-1])
+    u = np.arange(rig.width, dtype=np.float64)[None, :]
+    v = np.arange(rig.height, dtype=np.float64)[:, None]
+    print(f"cv2 {cv2.__version__}, {cv2.getNumThreads()} threads; numpy {np.__version__}; 640x480; "
+          f"median of {args.repeat} runs\n")
+    print(f"{'scene':14} {'method':34} {'images':>6} {'ms median':>9} {'ms p90':>7} {'RMSE mm':>8} {'cover':>6} {'orders':>7}")
+    for item in args.scenes.split(","):
+        kind, seed = item.split(":")
+        scene = make_scene(rig, kind, int(seed))
+        capture = render(rig, scene, patterns, np.random.default_rng(int(seed)))
+        capture3 = render(rig, scene, three_step, np.random.default_rng(int(seed) + 1))
+        rec, t_ours = timed(lambda: ours(capture.images), args.repeat)
+        fringe = fringe_depth_mm(calibration, calibration.model.phase_at_depth(capture.depth_mm, u, v))
+        e_ours = depth_errors(rec.depth_mm, capture.depth_mm, capture.valid, fringe)
+
+        images3 = [np.ascontiguousarray(img) for img in capture3.images[-3:]]
+        (wrapped, shadow), t_phase = timed(lambda: sinus.computePhaseMap(images3), args.repeat)
+        unwrapped, t_unwrap = timed(lambda: sinus.unwrapPhaseMap(wrapped, (rig.width, rig.height), shadowMask=shadow),
+                                    args.repeat)
+        true_phase = calibration.model.phase_at_depth(capture.depth_mm, u, v)
+        best = None
+        for sign in (1.0, -1.0):  # oracle alignment: the sign and 2 pi k that fit the truth best
+            aligned = sign * unwrapped.astype(np.float64)
+            lit = capture.valid & (shadow > 0)
+            aligned += 2 * np.pi * np.rint(np.median((true_phase - aligned)[lit]) / (2 * np.pi))
+            depth = calibration.model.depth(aligned, u, v)
+            depth[shadow == 0] = np.nan
+            e = depth_errors(depth, capture.depth_mm, capture.valid, fringe)
+            best = e if best is None or e.rmse_mm < best.rmse_mm else best
+        t_cv = t_phase + t_unwrap
+        name = f"{kind}-{seed}"
+        print(f"{name:14} {'ours: phase, unwrap, depth + XYZ':34} {16:6d} {np.median(t_ours):9.1f} "
+              f"{np.percentile(t_ours, 90):7.1f} {e_ours.rmse_mm:8.4f} {e_ours.coverage:6.1%} {e_ours.order_errors:7d}")
+        print(f"{'':14} {'OpenCV computePhaseMap':34} {3:6d} {np.median(t_phase):9.1f} {np.percentile(t_phase, 90):7.1f}")
+        print(f"{'':14} {'OpenCV unwrapPhaseMap':34} {'':6} {np.median(t_unwrap):9.1f} {np.percentile(t_unwrap, 90):7.1f}")
+        print(f"{'':14} {'OpenCV total (phase only, no depth)':34} {3:6d} {np.median(t_cv):9.1f} "
+              f"{np.percentile(t_cv, 90):7.1f} {best.rmse_mm:8.4f} {best.coverage:6.1%} {best.order_errors:7d}")
+        print(f"{'':14} {'time ratio OpenCV / ours':34} {'':6} {np.median(t_cv) / np.median(t_ours):9.2f}\n")
+
+
+if __name__ == "__main__":
+    main()
