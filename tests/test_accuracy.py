@@ -27,7 +27,12 @@ def test_multi_shot_is_within_twice_the_noise_limit(results):
         assert r.errors.rmse_mm < 0.06
 
 
-def test_no_fringe_order_errors_and_shadows_are_all_that_is_lost(results):
+def test_no_fringe_order_errors_and_shadows_are_all_that_is_lost(results, calibration):
+    tallest_step = max(np.abs(np.diff(c.depth_mm, axis=1)).max() for _, _, c in results)
+    u, v = np.arange(640.0)[None, :], np.arange(480.0)[:, None]
+    one_fringe = fringe_depth_mm(calibration, calibration.model.phase_at_depth(1200.0, u, v)).max()
+    assert 10 < one_fringe < 16
+    assert tallest_step > 2 * one_fringe  # the scenes do test temporal unwrapping
     for r, _, capture in results:
         assert r.errors.order_errors == 0, r
         assert r.errors.coverage > 0.98, r  # of the lit pixels; the rest sit on edges (flying-pixel filter)

@@ -46,7 +46,12 @@ def test_reconstruct_and_evaluate(workdir, method, bound):
     assert r.returncode == 0, r.stderr
     for name in ("depth_mm.npy", "depth_mm.tiff", "points.ply", "depth.png"):
         assert (out / name).is_file()
-    assert (out / "points.ply").read_bytes().startswith(b"ply\nformat binary_little_endian 1.0\nelement vertex ")
+    ply = (out / "points.ply").read_bytes()
+    header, body = ply.split(b"end_header\n")
+    assert b"obj_info num_cols 640\nobj_info num_rows 480\nelement vertex 307200" in header
+    xyz = np.frombuffer(body, [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("g", "u1", 3)])
+    depth = np.load(out / "depth_mm.npy")
+    np.testing.assert_allclose(xyz["z"].reshape(480, 640), depth / 1000.0, rtol=1e-6)  # organized, metres
     tiff = cv2.imread(str(out / "depth_mm.tiff"), cv2.IMREAD_UNCHANGED)
     np.testing.assert_array_equal(np.isnan(tiff), np.isnan(np.load(out / "depth_mm.npy")))
     r = fpp("evaluate", out / "depth_mm.npy", workdir / "scene" / "depth_gt_mm.npy", "--valid", workdir / "scene" / "valid_gt.png")

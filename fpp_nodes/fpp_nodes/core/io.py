@@ -96,24 +96,25 @@ def depth_picture(depth_mm: np.ndarray, near: float | None = None, far: float | 
 
 
 def write_ply(path, xyz: np.ndarray, grey: np.ndarray | None = None) -> int:
-    """Binary PLY of the finite points of an organized (H, W, 3) cloud, with grey colour if given.
-    Returns the number of points written."""
-    points = xyz.reshape(-1, 3)
-    keep = np.all(np.isfinite(points), axis=1)
+    """Binary PLY of an organized (H, W, 3) cloud: all H x W vertices in row-major order, NaN where
+    invalid, with the grid's size in obj_info lines as PCL writes them; grey colour if given.
+    Returns the number of valid points."""
+    h, w = xyz.shape[:2]
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     if grey is not None:
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
-    rows = np.empty(int(keep.sum()), fields)
+    rows = np.empty(h * w, fields)
     for i, axis in enumerate("xyz"):
-        rows[axis] = points[keep, i]
+        rows[axis] = xyz[..., i].reshape(-1)
     if grey is not None:
         g = np.asarray(grey, np.float64)
-        g8 = np.clip(g / max(float(g.max()), 1e-9) * 255, 0, 255).astype(np.uint8).reshape(-1)[keep]
+        g8 = np.clip(g / max(float(g.max()), 1e-9) * 255, 0, 255).astype(np.uint8).reshape(-1)
         rows["red"] = rows["green"] = rows["blue"] = g8
-    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(rows)}"]
+    header = ["ply", "format binary_little_endian 1.0", f"obj_info num_cols {w}", f"obj_info num_rows {h}",
+              f"element vertex {h * w}"]
     header += [f"property {'float' if t == '<f4' else 'uchar'} {n}" for n, t in fields]
     header.append("end_header")
     with open(path, "wb") as f:
         f.write(("\n".join(header) + "\n").encode())
         f.write(rows.tobytes())
-    return len(rows)
+    return int(np.count_nonzero(np.all(np.isfinite(xyz), axis=-1)))
