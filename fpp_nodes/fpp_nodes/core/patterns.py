@@ -104,12 +104,23 @@ def fringe_value(p: PatternSet, frequency: int, step: int, x: np.ndarray) -> np.
     return np.round(p.max_value * radiance ** (1.0 / p.gamma))
 
 
+def pattern_dtype(p: PatternSet):
+    return np.uint8 if p.bit_depth == 8 else np.uint16
+
+
+def pattern_lines(p: PatternSet) -> np.ndarray:
+    """Every pattern's profile across the fringes, shape (count, L): a pattern is its line repeated
+    along the fringes, so the line is all a projector or a simulated camera needs."""
+    x = np.arange(p.period_axis_length)
+    return np.stack([fringe_value(p, f, j, x) for f, j in p.order()]).astype(pattern_dtype(p))
+
+
+def line_image(p: PatternSet, line: np.ndarray) -> np.ndarray:
+    """The pattern as the 2-D image a projector shows: 1 x L for vertical fringes, L x 1 for horizontal
+    (broadcast it to height x width to display)."""
+    return line[None, :] if p.orientation == "vertical" else line[:, None]
+
+
 def generate_patterns(p: PatternSet) -> np.ndarray:
     """All patterns, shape (count, height, width), uint8 or uint16, in projection order."""
-    dtype = np.uint8 if p.bit_depth == 8 else np.uint16
-    out = np.empty((p.count, p.height, p.width), dtype)
-    x = np.arange(p.period_axis_length)
-    for i, (f, j) in enumerate(p.order()):
-        line = fringe_value(p, f, j, x).astype(dtype)
-        out[i] = line[None, :] if p.orientation == "vertical" else line[:, None]
-    return out
+    return np.stack([np.broadcast_to(line_image(p, line), (p.height, p.width)) for line in pattern_lines(p)])

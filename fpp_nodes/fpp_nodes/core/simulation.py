@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from .calibration import CameraIntrinsics, RationalModel
-from .patterns import PatternSet, fringe_value
+from .patterns import PatternSet, pattern_lines
 
 
 class SimulationError(ValueError):
@@ -315,41 +315,64 @@ def projector_shadow(rig: Rig, depth: np.ndarray, cam: CameraIntrinsics, step_px
     return shadow
 
 
-def render(rig: Rig, scene: Scene, patterns: PatternSet, rng: np.random.Generator | None = None) -> Capture:
-    """The images the camera captures of the scene under each pattern, with the exact ground truth.
+class SceneRenderer:
+    """One scene under the rig: the geometry (where each pixel's surface point lands in the projector,
+    whether the projector reaches it) is computed once, then image() renders any pattern shown.
 
     Camera level = full_scale * (ambient + gain * albedo * (pattern / max) ** projector_gamma), then
     defocus blur, Gaussian noise (noise_sigma counts; skipped when rng is None), rounding and clipping.
+    The projector is pixelated: the pattern is interpolated linearly between its pixel centres.
     """
-    check_patterns(rig, patterns)
-    depth = np.asarray(scene.depth_mm, np.float64)
-    if depth.shape != (rig.height, rig.width):
-        raise SimulationError(f"scene is {depth.shape[1]}x{depth.shape[0]} but the camera is {rig.width}x{rig.height}")
-    # Render a margin beyond the image (the scene's border extended) so that the blur near the
-    # border mixes in what a real lens would, not a mirror image of the fringes.
-    m = int(np.ceil(4 * rig.blur_sigma_px))
-    cam = rig.camera()
-    canvas = CameraIntrinsics(cam.width + 2 * m, cam.height + 2 * m, cam.fx, cam.fy, cam.cx + m, cam.cy + m)
-    depth = cv2.copyMakeBorder(depth, m, m, m, m, cv2.BORDER_REPLICATE)
-    albedo = cv2.copyMakeBorder(np.asarray(scene.albedo, np.float64), m, m, m, m, cv2.BORDER_REPLICATE)
-    x, y = canvas.rays()
-    points = np.stack([x * depth, y * depth, depth], axis=-1)
-    xp, yp, zp = rig.to_projector(points)
-    inside = (zp > 0) & (xp >= -0.5) & (xp <= rig.projector_width - 0.5) & (yp >= -0.5) & (yp <= rig.projector_height - 0.5)
-    lit = inside & ~projector_shadow(rig, depth, canvas)
-    coord = xp if patterns.orientation == "vertical" else yp
-    full = rig.full_scale
-    dtype = np.uint8 if rig.camera_bit_depth == 8 else np.uint16
-    images = np.empty((patterns.count, rig.height, rig.width), dtype)
-    reflect = rig.gain * albedo * lit
-    crop = (slice(m, m + rig.height), slice(m, m + rig.width))
-    for i, (f, j) in enumerate(patterns.order()):
-        radiance = (fringe_value(patterns, f, j, coord) / patterns.max_value) ** rig.projector_gamma
-        level = full * (rig.ambient + reflect * radiance)
+
+    def __init__(self, rig: Rig, scene: Scene):
+        depth = np.asarray(scene.depth_mm, np.float64)
+        if depth.shape != (rig.height, rig.width):
+            raise SimulationError(f"scene is {depth.shape[1]}x{depth.shape[0]} but the camera is {rig.width}x{rig.height}")
+        self.rig, self.scene = rig, scene
+        # Render a margin beyond the image (the scene's border extended) so that the blur near the
+        # border mixes in what a real lens would, not a mirror image of the fringes.
+        m = int(np.ceil(4 * rig.blur_sigma_px))
+        cam = rig.camera()
+        canvas = CameraIntrinsics(cam.width + 2 * m, cam.height + 2 * m, cam.fx, cam.fy, cam.cx + m, cam.cy + m)
+        depth = cv2.copyMakeBorder(depth, m, m, m, m, cv2.BORDER_REPLICATE)
+        albedo = cv2.copyMakeBorder(np.asarray(scene.albedo, np.float64), m, m, m, m, cv2.BORDER_REPLICATE)
+        x, y = canvas.rays()
+        self.xp, self.yp, zp = rig.to_projector(np.stack([x * depth, y * depth, depth], axis=-1))
+        inside = (zp > 0) & (self.xp >= -0.5) & (self.xp <= rig.projector_width - 0.5) & \
+                 (self.yp >= -0.5) & (self.yp <= rig.projector_height - 0.5)
+        self.lit = inside & ~projector_shadow(rig, depth, canvas)
+        self.reflect = (rig.full_scale * rig.gain * albedo * self.lit).astype(np.float32)
+        self.crop = (slice(m, m + rig.height), slice(m, m + rig.width))
+
+    def image(self, line: np.ndarray, max_value: int, vertical: bool = True,
+              rng: np.random.Generator | None = None) -> np.ndarray:
+        """What the camera captures while the projector shows the pattern with this profile line."""
+        rig = self.rig
+        coord = self.xp if vertical else self.yp
+        light = np.interp(coord, np.arange(len(line)), np.asarray(line, np.float64) / max_value).astype(np.float32)
+        level = cv2.pow(light, rig.projector_gamma)
+        level *= self.reflect
+        level += rig.full_scale * rig.ambient
         if rig.blur_sigma_px > 0:
             level = cv2.GaussianBlur(level, (0, 0), rig.blur_sigma_px)
-        level = level[crop]
+        level = level[self.crop]
         if rng is not None and rig.noise_sigma > 0:
-            level += rng.normal(0.0, rig.noise_sigma, level.shape)
-        images[i] = np.clip(np.rint(level), 0, full)
-    return Capture(images, depth[crop], lit[crop], coord[crop])
+            level = level + rig.noise_sigma * rng.standard_normal(level.shape, dtype=np.float32)
+        dtype = np.uint8 if rig.camera_bit_depth == 8 else np.uint16
+        return np.clip(np.rint(level), 0, rig.full_scale).astype(dtype)
+
+    def truth(self, vertical: bool = True) -> Capture:
+        """Ground truth without images: depth, lit mask, exact projector coordinate."""
+        coord = self.xp if vertical else self.yp
+        return Capture(np.empty((0, self.rig.height, self.rig.width), np.uint8), np.asarray(self.scene.depth_mm, np.float64),
+                       self.lit[self.crop], coord[self.crop])
+
+
+def render(rig: Rig, scene: Scene, patterns: PatternSet, rng: np.random.Generator | None = None) -> Capture:
+    """The images the camera captures of the scene under each pattern, with the exact ground truth."""
+    check_patterns(rig, patterns)
+    renderer = SceneRenderer(rig, scene)
+    vertical = patterns.orientation == "vertical"
+    capture = renderer.truth(vertical)
+    capture.images = np.stack([renderer.image(line, patterns.max_value, vertical, rng) for line in pattern_lines(patterns)])
+    return capture
