@@ -4,17 +4,28 @@ PYTHON ?= python3.11
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+WS_STAMP := ros_ws/install/.built
 BENCH_VENV := .venv-opencv
 BENCH_STAMP := $(BENCH_VENV)/.installed
 
 .PHONY: setup demo test bench constraints clean
 
-setup: $(STAMP)
+setup: $(STAMP) $(WS_STAMP)
 
-$(STAMP): requirements.txt constraints.txt fpp_nodes/setup.py
+# compat editable mode: a path entry, so the source checkout's folders never shadow the packages
+$(STAMP): requirements.txt constraints.txt fpp_nodes/setup.py fpp_msgs_py/setup.py
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet -r requirements.txt -c constraints.txt
-	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e ./fpp_nodes
+	$(PY) -m pip install --quiet --no-deps --no-build-isolation --config-settings editable_mode=compat \
+	  -e ./fpp_msgs_py -e ./fpp_nodes
+	# PyPI has no ros2cli: where no other ros2 is on PATH, install our `ros2 run`
+	if ! command -v ros2 >/dev/null 2>&1 || [ "$$(command -v ros2)" = "$(CURDIR)/$(VENV)/bin/ros2" ]; then \
+	  sed '1s|.*|#!$(CURDIR)/$(PY)|' scripts/ros2 > $(VENV)/bin/ros2 && chmod +x $(VENV)/bin/ros2; fi
+	touch $@
+
+# The colcon workspace: ros2 run finds the executables in ros_ws/install/<pkg>/lib/<pkg>.
+$(WS_STAMP): $(STAMP) fpp_nodes/setup.py fpp_nodes/package.xml fpp_msgs_py/setup.py fpp_msgs_py/package.xml
+	cd ros_ws && ../$(VENV)/bin/colcon --log-base log build --symlink-install --event-handlers console_direct- >/dev/null
 	touch $@
 
 demo: setup
@@ -39,4 +50,4 @@ constraints: setup
 	  | sed 's/^torch==\(.*\)+cpu/torch==\1/' > constraints.txt
 
 clean:
-	rm -rf $(VENV) $(BENCH_VENV) out
+	rm -rf $(VENV) $(BENCH_VENV) out ros_ws/build ros_ws/install ros_ws/log

@@ -10,6 +10,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
     ],
+    package_data={"fpp_nodes": ["data/*.yaml"]},
     install_requires=["setuptools"],
     zip_safe=True,
     maintainer="FPP sensor team",
@@ -19,6 +20,11 @@ setup(
     entry_points={
         "console_scripts": [
             "fpp = fpp_nodes.cli:main",
+            "pattern_projector = fpp_nodes.nodes.pattern_projector:main",
+            "fringe_camera_sim = fpp_nodes.nodes.fringe_camera_sim:main",
+            "capture_sequence = fpp_nodes.nodes.capture_sequence:main",
+            "fpp_depth = fpp_nodes.nodes.fpp_depth:main",
+            "sensor = fpp_nodes.nodes.sensor:main",
         ],
     },
 )

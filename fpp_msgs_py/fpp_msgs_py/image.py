@@ -35,7 +35,7 @@ def numpy_to_image(array_2d: np.ndarray, header=None, encoding: str | None = Non
     msg.is_bigendian = 0
     msg.step = a.shape[1] * a.dtype.itemsize
     data = array.array("B")
-    data.frombytes(np.ascontiguousarray(a.astype(a.dtype.newbyteorder("<"), copy=False)).data)
+    data.frombytes(np.ascontiguousarray(a.astype(a.dtype.newbyteorder("<"), copy=False)).reshape(-1).view(np.uint8).data)
     msg.data = data
     return msg
 

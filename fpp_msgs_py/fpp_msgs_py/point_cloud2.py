@@ -40,7 +40,7 @@ def xyz_to_cloud(xyz: np.ndarray, header=None, intensity: np.ndarray | None = No
     msg.row_step = dtype.itemsize * w
     msg.is_dense = bool(np.isfinite(xyz).all())
     data = array.array("B")
-    data.frombytes(points.data)
+    data.frombytes(points.reshape(-1).view(np.uint8).data)
     msg.data = data
     return msg
 

@@ -1,0 +1,113 @@
+"""capture_sequence: camera frames -> complete phase-shift sequences, using the projector's timing.
+
+Subscribes projector/pattern (which pattern was shown when) and camera/image_raw. A frame belongs to
+the pattern shown within max_time_offset of its stamp; its index comes from matching that pattern
+against the calibration's pattern set. Publishes fringe_sequence (sensor_msgs/Image): the K frames
+stacked vertically (height K x H), stamped with the first frame's time. A sequence with a missing,
+duplicated or out-of-order frame is dropped with a warning and counted, never mixed into the next.
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+from std_msgs.msg import Header
+
+from fpp_msgs_py import ImageError, Qos, Topics, image_to_numpy, numpy_to_image
+
+from ..core.patterns import line_image, pattern_lines
+from ..core.sequence import SequenceAssembler
+from .common import declare, load_calibration, on_set, positive, run
+
+
+def _ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+class CaptureSequence(Node):
+    def __init__(self, **kwargs):
+        super().__init__("capture_sequence", **kwargs)
+        calibration = load_calibration(self)
+        patterns = calibration.patterns
+        self.max_offset_ns = int(declare(self, "max_time_offset", 0.005,
+                                         "largest |camera stamp - pattern stamp| of a match, seconds") * 1e9)
+        on_set(self, {"max_time_offset": positive})
+        self.add_post_set_parameters_callback(
+            lambda ps: [setattr(self, "max_offset_ns", int(p.value * 1e9)) for p in ps if p.name == "max_time_offset"])
+        self.index_of_line = {line_image(patterns, line).tobytes(): i for i, line in enumerate(pattern_lines(patterns))}
+        self.assembler = SequenceAssembler(patterns.count)
+        self.shown: deque[tuple[int, int]] = deque(maxlen=4 * patterns.count)  # (stamp ns, pattern index)
+        self.waiting: deque[Image] = deque(maxlen=8)  # frames that arrived before their pattern event
+        self.unmatched = 0
+        self.publisher = self.create_publisher(Image, Topics.SEQUENCE, Qos.LARGE)
+        self.create_subscription(Image, Topics.PATTERN, self._on_pattern, Qos.FRAMES)
+        self.create_subscription(Image, Topics.CAMERA_IMAGE, self._on_frame, Qos.FRAMES)
+
+    def _on_pattern(self, msg: Image):
+        try:
+            index = self.index_of_line.get(image_to_numpy(msg).tobytes())
+        except ImageError as e:
+            self.get_logger().error(f"pattern ignored: {e}", throttle_duration_sec=5.0)
+            return
+        if index is None:
+            self.get_logger().error("the projector shows a pattern that is not in the calibration's pattern set",
+                                    throttle_duration_sec=5.0)
+            return
+        self.shown.append((_ns(msg.header.stamp), index))
+        self._drain()
+
+    def _match(self, frame: Image) -> int | None:
+        t = _ns(frame.header.stamp)
+        best = min(self.shown, key=lambda e: abs(e[0] - t), default=None)
+        return best[1] if best is not None and abs(best[0] - t) <= self.max_offset_ns else None
+
+    def _on_frame(self, msg: Image):
+        if len(self.waiting) == self.waiting.maxlen:
+            self._unmatched(self.waiting.popleft())
+        self.waiting.append(msg)
+        self._drain()
+
+    def _drain(self):
+        """Assemble waiting frames in arrival order; a frame waits until its pattern event arrives
+        (the two topics are delivered independently) or a later event shows none will."""
+        while self.waiting:
+            head = self.waiting[0]
+            index = self._match(head)
+            if index is None:
+                if not self.shown or self.shown[-1][0] <= _ns(head.header.stamp) + self.max_offset_ns:
+                    return
+                self._unmatched(self.waiting.popleft())
+                continue
+            self._assemble(self.waiting.popleft(), index)
+
+    def _unmatched(self, frame: Image):
+        self.unmatched += 1
+        self.get_logger().warn(f"camera frame matches no projected pattern (within {self.max_offset_ns / 1e9:g} s); "
+                               f"{self.unmatched} so far", throttle_duration_sec=5.0)
+
+    def _assemble(self, msg: Image, index: int):
+        try:
+            image = image_to_numpy(msg)
+        except ImageError as e:
+            self.get_logger().error(f"camera frame ignored: {e}", throttle_duration_sec=5.0)
+            return
+        sequence, dropped = self.assembler.add(index, _ns(msg.header.stamp), image)
+        stats = self.assembler.stats
+        if dropped:
+            self.get_logger().warn(f"sequence dropped ({dropped}); {stats.dropped} dropped, "
+                                   f"{stats.completed} complete so far")
+        if sequence is not None:
+            k, h, w = sequence.images.shape
+            header = Header(stamp=msg.header.stamp, frame_id=msg.header.frame_id)
+            header.stamp.sec, header.stamp.nanosec = divmod(sequence.stamps_ns[0], 1_000_000_000)
+            self.publisher.publish(numpy_to_image(sequence.images.reshape(k * h, w), header))
+
+
+def main(args=None):
+    run(CaptureSequence, args=args)
+
+
+if __name__ == "__main__":
+    main()

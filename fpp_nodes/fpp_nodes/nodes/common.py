@@ -1,0 +1,84 @@
+"""What every node shares: declaring validated parameters, loading the calibration, the main loop."""
+from __future__ import annotations
+
+import sys
+from importlib import resources
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+
+from ..core.calibration import Calibration
+
+
+class ConfigError(ValueError):
+    """A parameter value a node cannot start or go on with."""
+
+
+def default_calibration_path() -> str:
+    """The calibration of the simulated rig that ships with the package (made by `fpp demo --seed 0`)."""
+    return str(resources.files("fpp_nodes") / "data" / "sim_calibration.yaml")
+
+
+def declare(node: Node, name: str, default, description: str, read_only: bool = False):
+    """Declare a parameter with its description and return its value."""
+    node.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=read_only))
+    return node.get_parameter(name).value
+
+
+def load_calibration(node: Node) -> Calibration:
+    path = declare(node, "calibration", "", "calibration YAML (empty: the simulated rig's, shipped with the package)",
+                   read_only=True) or default_calibration_path()
+    calibration = Calibration.load(path)  # CalibrationError names the problem
+    node.get_logger().info(f"calibration {path}: {calibration.camera.width}x{calibration.camera.height}, "
+                           f"{calibration.patterns.count} patterns")
+    return calibration
+
+
+def on_set(node: Node, checks: dict):
+    """Validate runtime parameter changes: checks maps a name to a function returning an error or None."""
+    def callback(params):
+        for p in params:
+            check = checks.get(p.name)
+            reason = check(p.value) if check else None
+            if reason:
+                return SetParametersResult(successful=False, reason=f"{p.name}: {reason}")
+        return SetParametersResult(successful=True)
+    node.add_on_set_parameters_callback(callback)
+
+
+def positive(value) -> str | None:
+    return None if isinstance(value, (int, float)) and value > 0 else f"must be > 0, got {value!r}"
+
+
+def spin(nodes: list[Node]) -> None:
+    # One thread: rclpy's multi-threaded executor was seen to hand a subscription's messages to its
+    # callback out of order, which breaks sequences; the heavy work releases the GIL anyway.
+    executor = SingleThreadedExecutor()
+    for n in nodes:
+        executor.add_node(n)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown()
+
+
+def run(*node_classes, args=None) -> None:
+    """main() of an executable: start the nodes, spin, shut down cleanly; a bad configuration is one
+    error line and exit status 2, not a traceback."""
+    rclpy.init(args=args)
+    nodes = []
+    try:
+        nodes = [cls() for cls in node_classes]
+    except (ValueError, OSError) as e:
+        print(f"[FATAL] {e}", file=sys.stderr)
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown()
+        sys.exit(2)
+    spin(nodes)

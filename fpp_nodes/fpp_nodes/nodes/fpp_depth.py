@@ -1,0 +1,82 @@
+"""fpp_depth: the multi-shot path. Each complete fringe sequence -> depth, point cloud, quality.
+
+Subscribes fringe_sequence (K images stacked vertically). Publishes depth/image (32FC1, metres, NaN
+invalid), depth/camera_info, points (organized PointCloud2, metres, optical frame) and quality/image
+(32FC1, fringe modulation in camera counts), each with the sequence's header. Outputs nobody
+subscribes to are not computed; with no subscriber at all, nothing is.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+from fpp_msgs_py import ImageError, Qos, Topics, camera_info, image_to_numpy, numpy_to_image, xyz_to_cloud
+
+from ..core.phase import PhaseError
+from ..core.reconstruct import PspReconstructor, QualityLimits
+from .common import declare, load_calibration, run
+
+
+class FppDepth(Node):
+    def __init__(self, **kwargs):
+        super().__init__("fpp_depth", **kwargs)
+        self.calibration = load_calibration(self)
+        limits = QualityLimits(
+            min_modulation=declare(self, "min_modulation", QualityLimits.min_modulation,
+                                   "least fringe modulation kept, fraction of full scale", True),
+            max_depth_step_mm=declare(self, "max_depth_step_mm", QualityLimits.max_depth_step_mm,
+                                      "largest depth step between neighbours kept (flying pixels), mm", True))
+        self.reconstruct = PspReconstructor(self.calibration, limits)
+        cam = self.calibration.camera
+        self.info = camera_info(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
+        self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
+        self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
+        self.points_pub = self.create_publisher(PointCloud2, Topics.POINTS, Qos.LARGE)
+        self.quality_pub = self.create_publisher(Image, Topics.QUALITY, Qos.LARGE)
+        self.create_subscription(Image, Topics.SEQUENCE, self._on_sequence, Qos.LARGE)
+        self.processed = 0
+        self.skipped = 0
+        self.last_latency_s = float("nan")
+
+    def _wanted(self):
+        return {name: pub.get_subscription_count() > 0 for name, pub in
+                (("depth", self.depth_pub), ("points", self.points_pub), ("quality", self.quality_pub))}
+
+    def _on_sequence(self, msg: Image):
+        wanted = self._wanted()
+        if not any(wanted.values()):
+            self.skipped += 1
+            return
+        start = time.perf_counter()
+        cam, k = self.calibration.camera, self.calibration.patterns.count
+        try:
+            stack = image_to_numpy(msg)
+            if stack.shape != (k * cam.height, cam.width):
+                raise ImageError(f"expected {k} stacked {cam.width}x{cam.height} images ({cam.width}x{k * cam.height}), "
+                                 f"got {stack.shape[1]}x{stack.shape[0]}")
+            rec = self.reconstruct(stack.reshape(k, cam.height, cam.width))
+        except (ImageError, PhaseError) as e:
+            self.get_logger().error(f"sequence ignored: {e}", throttle_duration_sec=5.0)
+            return
+        header = msg.header
+        if wanted["depth"]:
+            self.depth_pub.publish(numpy_to_image(rec.depth_mm * np.float32(0.001), header))
+        if wanted["points"]:
+            self.points_pub.publish(xyz_to_cloud(rec.xyz_mm * np.float32(0.001), header))
+        if wanted["quality"]:
+            self.quality_pub.publish(numpy_to_image(rec.quality, header))
+        self.info.header = header
+        self.info_pub.publish(self.info)
+        self.processed += 1
+        self.last_latency_s = time.perf_counter() - start
+
+
+def main(args=None):
+    run(FppDepth, args=args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,74 @@
+"""fringe_camera_sim: the simulated camera. Sees the pattern the projector shows on a synthetic scene.
+
+Subscribes projector/pattern; publishes camera/image_raw (mono8 or mono16) and camera/camera_info,
+stamped with the time of the pattern it captured, and sim/depth_truth (32FC1, metres, NaN in
+projector shadow; latched) for evaluation. A real camera driver or a bag replaces it.
+"""
+from __future__ import annotations
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import Header
+
+from fpp_msgs_py import Frames, ImageError, Qos, Topics, camera_info, image_to_numpy, numpy_to_image
+
+from ..core.simulation import SCENE_KINDS, Rig, SceneRenderer, make_scene, scene_from_file
+from .common import declare, run
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class FringeCameraSim(Node):
+    def __init__(self, **kwargs):
+        super().__init__("fringe_camera_sim", **kwargs)
+        defaults = Rig()
+        self.rig = Rig(noise_sigma=declare(self, "noise_sigma", defaults.noise_sigma, "camera noise, counts", True),
+                       blur_sigma_px=declare(self, "blur_sigma_px", defaults.blur_sigma_px, "defocus blur, pixels", True),
+                       projector_width=declare(self, "projector_width", defaults.projector_width, "pixels", True),
+                       projector_height=declare(self, "projector_height", defaults.projector_height, "pixels", True),
+                       projector_gamma=declare(self, "projector_gamma", defaults.projector_gamma, "", True))
+        scene = declare(self, "scene", "sculpture", f"one of {', '.join(SCENE_KINDS)}, or a height map file (mm)", True)
+        seed = declare(self, "seed", 0, "scene and noise seed", True)
+        map_kind = declare(self, "map_kind", "height", "what a scene file holds: height or depth (mm)", True)
+        self.scene = make_scene(self.rig, scene, seed) if scene in SCENE_KINDS else scene_from_file(self.rig, scene, map_kind)
+        self.renderer = SceneRenderer(self.rig, self.scene)
+        self.rng = np.random.default_rng(seed)
+        cam = self.rig.camera()
+        self.info = camera_info(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
+        self.image_pub = self.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
+        self.info_pub = self.create_publisher(CameraInfo, Topics.CAMERA_INFO, Qos.INFO)
+        truth_pub = self.create_publisher(Image, Topics.TRUTH, LATCHED)
+        truth = np.where(self.renderer.truth().valid, self.scene.depth_mm / 1000.0, np.nan).astype(np.float32)
+        truth_pub.publish(numpy_to_image(truth, Header(stamp=self.get_clock().now().to_msg(), frame_id=Frames.CAMERA)))
+        self.create_subscription(Image, Topics.PATTERN, self._on_pattern, Qos.FRAMES)
+        self.get_logger().info(f"scene {self.scene.name} (seed {seed}), {cam.width}x{cam.height}")
+
+    def _on_pattern(self, msg: Image):
+        try:
+            line = image_to_numpy(msg)
+        except ImageError as e:
+            self.get_logger().error(f"pattern ignored: {e}", throttle_duration_sec=5.0)
+            return
+        vertical = line.shape[0] == 1
+        length = self.rig.projector_width if vertical else self.rig.projector_height
+        if line.size != length or min(line.shape) != 1:
+            self.get_logger().error(f"pattern ignored: a {line.shape[1]}x{line.shape[0]} line does not fit a "
+                                    f"{self.rig.projector_width}x{self.rig.projector_height} projector",
+                                    throttle_duration_sec=5.0)
+            return
+        max_value = 255 if line.dtype == np.uint8 else 65535
+        image = self.renderer.image(line.reshape(-1), max_value, vertical, self.rng)
+        header = Header(stamp=msg.header.stamp, frame_id=Frames.CAMERA)
+        self.image_pub.publish(numpy_to_image(image, header))
+        self.info.header = header
+        self.info_pub.publish(self.info)
+
+
+def main(args=None):
+    run(FringeCameraSim, args=args)
+
+
+if __name__ == "__main__":
+    main()

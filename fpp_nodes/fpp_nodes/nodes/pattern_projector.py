@@ -1,0 +1,77 @@
+"""pattern_projector: shows the pattern set, one pattern per tick, and says which and when.
+
+Publishes projector/pattern (sensor_msgs/Image): the shown pattern's profile across the fringes
+(1 x L for vertical fringes, L x 1 for horizontal), stamped with the time it is shown. Continuously
+by default; with continuous:=false, each call of ~/capture (std_srvs/Trigger) shows one sequence.
+"""
+from __future__ import annotations
+
+from builtin_interfaces.msg import Time
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+from std_msgs.msg import Header
+from std_srvs.srv import Trigger
+
+from fpp_msgs_py import Frames, Qos, Topics, numpy_to_image
+
+from ..core.patterns import PatternSet, line_image, pattern_lines
+from .common import declare, on_set, positive, run
+
+
+class PatternProjector(Node):
+    def __init__(self, **kwargs):
+        super().__init__("pattern_projector", **kwargs)
+        self.patterns = PatternSet(
+            frequencies=tuple(declare(self, "frequencies", [1, 4, 20, 100], "fringes across the pattern, increasing from 1", True)),
+            steps=declare(self, "steps", 4, "phase shifts per frequency (>= 3)", True),
+            width=declare(self, "width", 1280, "projector width, pixels", True),
+            height=declare(self, "height", 800, "projector height, pixels", True),
+            orientation=declare(self, "orientation", "vertical", "vertical or horizontal fringes", True),
+            bit_depth=declare(self, "bit_depth", 8, "8 or 16", True),
+            gamma=declare(self, "gamma", 2.2, "projector gamma the patterns pre-compensate", True))
+        self.rate = declare(self, "rate", 30.0, "patterns per second")
+        if positive(self.rate):
+            raise ValueError(f"rate {positive(self.rate)}")
+        self.continuous = declare(self, "continuous", True, "show sequences over and over; false: one per ~/capture call")
+        on_set(self, {"rate": positive})
+        self.add_post_set_parameters_callback(self._after_set)
+        self.lines = [line_image(self.patterns, line) for line in pattern_lines(self.patterns)]
+        self.publisher = self.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)
+        self.create_service(Trigger, "~/capture", self._on_capture)
+        self.index = 0
+        self.queued = 0
+        self.timer = self.create_timer(1.0 / self.rate, self._on_tick)
+        self.get_logger().info(f"{self.patterns.count} patterns at {self.rate:g} Hz, "
+                               f"{'continuous' if self.continuous else 'on ~/capture'}")
+
+    def _after_set(self, params):
+        for p in params:
+            if p.name == "rate":
+                self.rate = p.value
+                self.timer.cancel()
+                self.timer = self.create_timer(1.0 / self.rate, self._on_tick)
+            elif p.name == "continuous":
+                self.continuous = p.value
+
+    def _on_capture(self, request, response):
+        self.queued += 1
+        response.success = True
+        response.message = f"{self.queued} sequence(s) queued"
+        return response
+
+    def _on_tick(self):
+        if not self.continuous and self.index == 0:
+            if self.queued == 0:
+                return
+            self.queued -= 1
+        stamp: Time = self.get_clock().now().to_msg()
+        self.publisher.publish(numpy_to_image(self.lines[self.index], Header(stamp=stamp, frame_id=Frames.PROJECTOR)))
+        self.index = (self.index + 1) % len(self.lines)
+
+
+def main(args=None):
+    run(PatternProjector, args=args)
+
+
+if __name__ == "__main__":
+    main()
