@@ -37,3 +37,15 @@ def pixel_grid():
     def grid(shape):
         return np.arange(shape[1], dtype=np.float64)[None, :], np.arange(shape[0], dtype=np.float64)[:, None]
     return grid
+
+
+@pytest.fixture
+def ros_graph(tmp_path):
+    """(processes, robot) on a fresh ROS domain; everything is stopped afterwards."""
+    from rosgraph import Processes, Robot, fresh_domain_id
+    domain = fresh_domain_id()
+    procs = Processes(domain, tmp_path)
+    robot = Robot(domain)
+    yield procs, robot
+    robot.close()
+    procs.stop()
