@@ -8,7 +8,7 @@ WS_STAMP := ros_ws/install/.built
 BENCH_VENV := .venv-opencv
 BENCH_STAMP := $(BENCH_VENV)/.installed
 
-.PHONY: setup demo test bench constraints clean
+.PHONY: setup demo offline-demo test bench constraints clean
 
 setup: $(STAMP) $(WS_STAMP)
 
@@ -29,7 +29,10 @@ $(WS_STAMP): $(STAMP) fpp_nodes/setup.py fpp_nodes/package.xml fpp_msgs_py/setup
 	touch $@
 
 demo: setup
-	$(VENV)/bin/fpp demo --out out/demo
+	bash -c 'source scripts/env.bash && ros2 run fpp_nodes demo --out out/demo'
+
+offline-demo: setup
+	$(VENV)/bin/fpp demo --out out/offline-demo
 
 test: setup
 	$(PY) -m pytest -q tests

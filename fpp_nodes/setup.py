@@ -25,6 +25,7 @@ setup(
             "capture_sequence = fpp_nodes.nodes.capture_sequence:main",
             "fpp_depth = fpp_nodes.nodes.fpp_depth:main",
             "sensor = fpp_nodes.nodes.sensor:main",
+            "demo = fpp_nodes.nodes.demo:main",
         ],
     },
 )

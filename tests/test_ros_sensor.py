@@ -132,3 +132,16 @@ def test_no_work_for_outputs_nobody_subscribes_to(ros_graph):
     assert robot.spin_until(lambda: len(clouds) == 1, 10) and depth_node.processed == 1
     robot.executor.remove_node(depth_node)
     depth_node.destroy_node()
+
+
+def test_main_job_writes_clouds_and_reports(tmp_path):
+    """`ros2 run fpp_nodes demo` (what `make demo` runs) on its own domain."""
+    import subprocess
+    from rosgraph import fresh_domain_id, ros_env
+    env = dict(ros_env(), ROS_DOMAIN_ID=str(fresh_domain_id()))
+    r = subprocess.run(["ros2", "run", "fpp_nodes", "demo", "--out", str(tmp_path), "--clouds", "2", "--scene", "objects"],
+                       env=env, capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert len(list(tmp_path.glob("cloud_*.ply"))) == 2 and len(list(tmp_path.glob("depth_*.png"))) >= 1
+    rows = [line.split() for line in r.stdout.splitlines() if line.strip()[:1].isdigit() and "%" in line]
+    assert len(rows) == 2 and all(float(row[5]) < 0.06 for row in rows)
