@@ -26,6 +26,8 @@ setup(
             "fpp_depth = fpp_nodes.nodes.fpp_depth:main",
             "sensor = fpp_nodes.nodes.sensor:main",
             "demo = fpp_nodes.nodes.demo:main",
+            "record = fpp_nodes.nodes.record:main",
+            "replay = fpp_nodes.nodes.replay:main",
         ],
     },
 )

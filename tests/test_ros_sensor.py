@@ -38,7 +38,7 @@ def check_clouds(robot, clouds, truth, count=2, timeout=60):
 
 def test_composed_sensor_with_a_late_subscriber(ros_graph):
     procs, robot = ros_graph
-    procs.run("sensor", "-p", "fringe_camera_sim.scene:=objects", "-p", "fringe_camera_sim.seed:=3")
+    procs.run("sensor", "-p", "scene:=objects", "-p", "seed:=3")  # -p reaches every node of the process
     truth = collect(robot, Topics.TRUTH, Image, LATCHED)
     clouds = collect(robot, Topics.POINTS, PointCloud2)
     check_clouds(robot, clouds, truth)

@@ -18,6 +18,7 @@ class Topics:
     POINTS = "points"  # sensor_msgs/PointCloud2, organized, metres
     QUALITY = "quality/image"  # sensor_msgs/Image 32FC1: fringe modulation, camera counts
     TRUTH = "sim/depth_truth"  # sensor_msgs/Image 32FC1, metres: the simulator's exact depth
+    CALIBRATION = "fpp/calibration"  # std_msgs/String, latched: calibration YAML (from a replayed bag)
 
 
 class Frames:
@@ -32,5 +33,8 @@ class Qos:
     # Results and sequences: the newest matters, never a backlog.
     LARGE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.VOLATILE)
+    # The newest value, kept for subscribers that join later (calibration, ground truth).
+    LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
     # Camera info beside each image.
     INFO = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.RELIABLE)

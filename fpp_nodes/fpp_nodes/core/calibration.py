@@ -202,8 +202,18 @@ class Calibration:
             raise CalibrationError(f"calibration has a malformed value: {e}") from None
         return cls(camera, model, patterns, reference)
 
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+    @classmethod
+    def from_yaml(cls, text: str) -> "Calibration":
+        try:
+            return cls.from_dict(yaml.safe_load(text))
+        except yaml.YAMLError as e:
+            raise CalibrationError(f"calibration is not valid YAML: {str(e).splitlines()[0]}") from None
+
     def save(self, path) -> None:
-        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
+        Path(path).write_text(self.to_yaml())
 
     @classmethod
     def load(cls, path) -> "Calibration":
@@ -212,10 +222,6 @@ class Calibration:
         except OSError as e:
             raise CalibrationError(f"cannot read calibration {path}: {e.strerror}") from None
         try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as e:
-            raise CalibrationError(f"calibration {path} is not valid YAML: {str(e).splitlines()[0]}") from None
-        try:
-            return cls.from_dict(data)
+            return cls.from_yaml(text)
         except CalibrationError as e:
             raise CalibrationError(f"{path}: {e}") from None

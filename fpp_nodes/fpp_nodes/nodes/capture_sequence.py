@@ -19,7 +19,7 @@ from fpp_msgs_py import ImageError, Qos, Topics, image_to_numpy, numpy_to_image
 
 from ..core.patterns import line_image, pattern_lines
 from ..core.sequence import SequenceAssembler
-from .common import declare, load_calibration, on_set, positive, run
+from .common import declare, follow_calibration, load_calibration, on_set, positive, run
 
 
 def _ns(stamp) -> int:
@@ -29,21 +29,25 @@ def _ns(stamp) -> int:
 class CaptureSequence(Node):
     def __init__(self, **kwargs):
         super().__init__("capture_sequence", **kwargs)
-        calibration = load_calibration(self)
-        patterns = calibration.patterns
+        self._use(load_calibration(self))
+        follow_calibration(self, lambda: self.calibration, self._use)
         self.max_offset_ns = int(declare(self, "max_time_offset", 0.005,
                                          "largest |camera stamp - pattern stamp| of a match, seconds") * 1e9)
         on_set(self, {"max_time_offset": positive})
         self.add_post_set_parameters_callback(
             lambda ps: [setattr(self, "max_offset_ns", int(p.value * 1e9)) for p in ps if p.name == "max_time_offset"])
-        self.index_of_line = {line_image(patterns, line).tobytes(): i for i, line in enumerate(pattern_lines(patterns))}
-        self.assembler = SequenceAssembler(patterns.count)
-        self.shown: deque[tuple[int, int]] = deque(maxlen=4 * patterns.count)  # (stamp ns, pattern index)
         self.waiting: deque[Image] = deque(maxlen=8)  # frames that arrived before their pattern event
         self.unmatched = 0
         self.publisher = self.create_publisher(Image, Topics.SEQUENCE, Qos.LARGE)
         self.create_subscription(Image, Topics.PATTERN, self._on_pattern, Qos.FRAMES)
         self.create_subscription(Image, Topics.CAMERA_IMAGE, self._on_frame, Qos.FRAMES)
+
+    def _use(self, calibration):
+        patterns = calibration.patterns
+        self.calibration = calibration
+        self.index_of_line = {line_image(patterns, line).tobytes(): i for i, line in enumerate(pattern_lines(patterns))}
+        self.assembler = SequenceAssembler(patterns.count)
+        self.shown: deque[tuple[int, int]] = deque(maxlen=4 * patterns.count)  # (stamp ns, pattern index)
 
     def _on_pattern(self, msg: Image):
         try:

@@ -8,8 +8,14 @@ import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import String
 
-from ..core.calibration import Calibration
+from fpp_msgs_py import Qos, Topics
+
+from ..core.calibration import Calibration, CalibrationError
+
+MESSAGE_TYPES = {"sensor_msgs/msg/Image": Image, "sensor_msgs/msg/CameraInfo": CameraInfo}
 
 
 class ConfigError(ValueError):
@@ -34,6 +40,21 @@ def load_calibration(node: Node) -> Calibration:
     node.get_logger().info(f"calibration {path}: {calibration.camera.width}x{calibration.camera.height}, "
                            f"{calibration.patterns.count} patterns")
     return calibration
+
+
+def follow_calibration(node: Node, current, use) -> None:
+    """Switch to a calibration published on fpp/calibration (a replayed bag's): use(calibration) is
+    called when one arrives that differs from current(); a bad one is an error and changes nothing."""
+    def callback(msg: String):
+        try:
+            calibration = Calibration.from_yaml(msg.data)
+        except CalibrationError as e:
+            node.get_logger().error(f"calibration on {Topics.CALIBRATION} ignored: {e}")
+            return
+        if calibration.to_dict() != current().to_dict():
+            use(calibration)
+            node.get_logger().info(f"using the calibration from {Topics.CALIBRATION}")
+    node.create_subscription(String, Topics.CALIBRATION, callback, Qos.LATCHED)
 
 
 def on_set(node: Node, checks: dict):

@@ -56,7 +56,7 @@ def main(argv=None):
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     sensor = subprocess.Popen([sys.executable, "-m", "fpp_nodes.nodes.sensor", "--ros-args",
-                               "-p", f"fringe_camera_sim.scene:={args.scene}", "-p", f"fringe_camera_sim.seed:={args.seed}"],
+                               "-p", f"scene:={args.scene}", "-p", f"seed:={args.seed}"],
                               start_new_session=True)
     rclpy.init()
     robot = Robot()

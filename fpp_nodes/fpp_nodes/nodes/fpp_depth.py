@@ -17,21 +17,20 @@ from fpp_msgs_py import ImageError, Qos, Topics, camera_info, image_to_numpy, nu
 
 from ..core.phase import PhaseError
 from ..core.reconstruct import PspReconstructor, QualityLimits
-from .common import declare, load_calibration, run
+from .common import declare, follow_calibration, load_calibration, run
 
 
 class FppDepth(Node):
     def __init__(self, **kwargs):
         super().__init__("fpp_depth", **kwargs)
-        self.calibration = load_calibration(self)
-        limits = QualityLimits(
+        calibration = load_calibration(self)
+        self.limits = QualityLimits(
             min_modulation=declare(self, "min_modulation", QualityLimits.min_modulation,
                                    "least fringe modulation kept, fraction of full scale", True),
             max_depth_step_mm=declare(self, "max_depth_step_mm", QualityLimits.max_depth_step_mm,
                                       "largest depth step between neighbours kept (flying pixels), mm", True))
-        self.reconstruct = PspReconstructor(self.calibration, limits)
-        cam = self.calibration.camera
-        self.info = camera_info(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
+        self._use(calibration)
+        follow_calibration(self, lambda: self.calibration, self._use)
         self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
         self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
         self.points_pub = self.create_publisher(PointCloud2, Topics.POINTS, Qos.LARGE)
@@ -40,6 +39,12 @@ class FppDepth(Node):
         self.processed = 0
         self.skipped = 0
         self.last_latency_s = float("nan")
+
+    def _use(self, calibration):
+        self.calibration = calibration
+        self.reconstruct = PspReconstructor(calibration, self.limits)
+        cam = calibration.camera
+        self.info = camera_info(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
 
     def _wanted(self):
         return {name: pub.get_subscription_count() > 0 for name, pub in

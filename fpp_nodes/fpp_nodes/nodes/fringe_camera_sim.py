@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
@@ -16,9 +15,6 @@ from fpp_msgs_py import Frames, ImageError, Qos, Topics, camera_info, image_to_n
 
 from ..core.simulation import SCENE_KINDS, Rig, SceneRenderer, make_scene, scene_from_file
 from .common import declare, run
-
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
 
 class FringeCameraSim(Node):
     def __init__(self, **kwargs):
@@ -39,7 +35,7 @@ class FringeCameraSim(Node):
         self.info = camera_info(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
         self.image_pub = self.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
         self.info_pub = self.create_publisher(CameraInfo, Topics.CAMERA_INFO, Qos.INFO)
-        truth_pub = self.create_publisher(Image, Topics.TRUTH, LATCHED)
+        truth_pub = self.create_publisher(Image, Topics.TRUTH, Qos.LATCHED)
         truth = np.where(self.renderer.truth().valid, self.scene.depth_mm / 1000.0, np.nan).astype(np.float32)
         truth_pub.publish(numpy_to_image(truth, Header(stamp=self.get_clock().now().to_msg(), frame_id=Frames.CAMERA)))
         self.create_subscription(Image, Topics.PATTERN, self._on_pattern, Qos.FRAMES)
