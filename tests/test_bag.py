@@ -53,7 +53,9 @@ def recorded(tmp_path_factory):
         procs.run("sensor", "-p", f"calibration:={d / 'cal.yaml'}", "-p", "scene:=objects", "-p", "seed:=4")
         assert robot.spin_until(lambda: len(clouds) >= 1, 60)
         procs.run("record", "-p", f"output:={d / 'bag'}", "-p", f"calibration:={d / 'cal.yaml'}")
-        assert robot.spin_until(lambda: len(clouds) >= 10, 60)  # about 9 sequences recorded
+        assert robot.spin_until(lambda: robot.node.count_subscribers(Topics.PATTERN) >= 3, 30)  # camera, capture, record
+        recording_from = len(clouds)
+        assert robot.spin_until(lambda: len(clouds) >= recording_from + 8, 60)
     finally:
         procs.stop()
         if robot:
