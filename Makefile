@@ -8,7 +8,7 @@ WS_STAMP := ros_ws/install/.built
 BENCH_VENV := .venv-opencv
 BENCH_STAMP := $(BENCH_VENV)/.installed
 
-.PHONY: setup demo offline-demo test bench constraints clean
+.PHONY: setup demo offline-demo test bench bench-stream constraints clean
 
 setup: $(STAMP) $(WS_STAMP)
 
@@ -45,6 +45,9 @@ $(BENCH_STAMP): requirements-bench.txt
 
 bench: $(BENCH_STAMP)
 	$(BENCH_VENV)/bin/python scripts/bench_psp.py
+
+bench-stream: setup
+	bash -c 'source scripts/env.bash && python scripts/bench_stream.py'
 
 # Re-pin the transitive dependencies after changing requirements.txt.
 constraints: setup

@@ -3,7 +3,6 @@ import time
 
 import numpy as np
 import pytest
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Header
 
@@ -11,7 +10,6 @@ from fpp_msgs_py import Frames, Qos, Topics, cloud_to_xyz, image_to_numpy, numpy
 from fpp_nodes.core.patterns import line_image, pattern_lines
 from fpp_nodes.core.simulation import Rig, make_scene, render
 
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def collect(robot, topic, msg_type, qos=Qos.LARGE):
@@ -39,7 +37,7 @@ def check_clouds(robot, clouds, truth, count=2, timeout=60):
 def test_composed_sensor_with_a_late_subscriber(ros_graph):
     procs, robot = ros_graph
     procs.run("sensor", "-p", "scene:=objects", "-p", "seed:=3")  # -p reaches every node of the process
-    truth = collect(robot, Topics.TRUTH, Image, LATCHED)
+    truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
     clouds = collect(robot, Topics.POINTS, PointCloud2)
     check_clouds(robot, clouds, truth)
     # a subscriber that joins late gets depth images from then on, and the latched truth
@@ -56,7 +54,7 @@ def test_each_node_in_its_own_process(ros_graph):
     procs, robot = ros_graph
     for exe in ("pattern_projector", "fringe_camera_sim", "capture_sequence", "fpp_depth"):
         procs.run(exe)
-    truth = collect(robot, Topics.TRUTH, Image, LATCHED)
+    truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
     clouds = collect(robot, Topics.POINTS, PointCloud2)
     check_clouds(robot, clouds, truth)
 

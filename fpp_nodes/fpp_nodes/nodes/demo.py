@@ -18,15 +18,11 @@ import cv2
 import numpy as np
 import rclpy
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
 
 from fpp_msgs_py import Qos, Topics, cloud_to_xyz, image_to_numpy
 
 from ..core import io
-
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
 
 def stamp_ns(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
@@ -42,7 +38,7 @@ class Robot(Node):
         self.create_subscription(Image, Topics.CAMERA_IMAGE, lambda m: self.frames.__setitem__(stamp_ns(m), clock()), Qos.FRAMES)
         self.create_subscription(PointCloud2, Topics.POINTS, lambda m: self.clouds.append((m, clock())), Qos.LARGE)
         self.create_subscription(Image, Topics.DEPTH, lambda m: self.depths.__setitem__(stamp_ns(m), m), Qos.LARGE)
-        self.create_subscription(Image, Topics.TRUTH, lambda m: setattr(self, "truth", image_to_numpy(m).copy()), LATCHED)
+        self.create_subscription(Image, Topics.TRUTH, lambda m: setattr(self, "truth", image_to_numpy(m).copy()), Qos.LATCHED)
 
 
 def main(argv=None):
@@ -79,31 +75,43 @@ def main(argv=None):
             sensor.wait(timeout=10)
 
 
-def report(robot: Robot, out: Path) -> None:
+def per_cloud(robot: Robot, frames_per_sequence: int = 16) -> list[dict]:
+    """Latency of each stage (ms) and accuracy of every cloud received, from the stamps (when each
+    pattern was shown) and the arrival times here."""
     frame_stamps = np.array(sorted(robot.frames))
     rows = []
-    for i, (cloud, arrived) in enumerate(robot.clouds):
+    for cloud, arrived in robot.clouds:
         first = stamp_ns(cloud)
-        last = frame_stamps[min(np.searchsorted(frame_stamps, first) + 15, len(frame_stamps) - 1)]  # 16th frame
-        xyz = cloud_to_xyz(cloud)
-        z = xyz[..., 2]
+        k = np.searchsorted(frame_stamps, first) + frames_per_sequence - 1
+        if k >= len(frame_stamps):
+            continue  # its last frame was not seen here
+        last = frame_stamps[k]
+        z = cloud_to_xyz(cloud)[..., 2]
         ok = np.isfinite(z) & np.isfinite(robot.truth)
-        rmse = float(np.sqrt(np.mean((z[ok] - robot.truth[ok]) ** 2)) * 1000)
-        rows.append(((robot.frames[last] - last) / 1e6, (arrived - robot.frames[last]) / 1e6, (arrived - last) / 1e6,
-                     (last - first) / 1e6, rmse, ok.sum() / np.isfinite(robot.truth).sum()))
-        io.write_ply(out / f"cloud_{i:02d}.ply", xyz)
-        depth = robot.depths.get(first)
+        rows.append({"camera": (robot.frames[last] - last) / 1e6, "capture+depth": (arrived - robot.frames[last]) / 1e6,
+                     "end-to-end": (arrived - last) / 1e6, "sequence": (last - first) / 1e6,
+                     "rmse_mm": float(np.sqrt(np.mean((z[ok] - robot.truth[ok]) ** 2)) * 1000),
+                     "cover": ok.sum() / np.isfinite(robot.truth).sum()})
+    return rows
+
+
+def report(robot: Robot, out: Path) -> None:
+    rows = per_cloud(robot)
+    for i, (cloud, _) in enumerate(robot.clouds):
+        io.write_ply(out / f"cloud_{i:02d}.ply", cloud_to_xyz(cloud))
+        depth = robot.depths.get(stamp_ns(cloud))
         if depth is not None:
             cv2.imwrite(str(out / f"depth_{i:02d}.png"), io.depth_picture(image_to_numpy(depth) * 1000.0))
     print(f"\n{len(rows)} clouds (640x480, organized) from the simulated sensor; milliseconds, from the stamps "
           "(when each pattern was shown) to arrival here")
     print(f"{'cloud':>5} {'camera':>7} {'capture+depth':>13} {'end-to-end':>10} {'sequence':>9} {'RMSE mm':>8} {'cover':>6}")
     for i, r in enumerate(rows):
-        print(f"{i:5d} {r[0]:7.1f} {r[1]:13.1f} {r[2]:10.1f} {r[3]:9.1f} {r[4]:8.4f} {r[5]:6.1%}")
+        print(f"{i:5d} {r['camera']:7.1f} {r['capture+depth']:13.1f} {r['end-to-end']:10.1f} {r['sequence']:9.1f} "
+              f"{r['rmse_mm']:8.4f} {r['cover']:6.1%}")
     print("camera: a sequence's last frame arrives, after its pattern was shown; capture+depth: then the cloud "
           "arrives;\nend-to-end: last pattern shown to cloud here; sequence: first to last pattern shown. "
           "RMSE and cover (of lit pixels) against the simulator's exact depth.")
-    print(f"wrote {len(rows)} .ply clouds (metres) and depth pictures to {out}")
+    print(f"wrote {len(robot.clouds)} .ply clouds (metres) and depth pictures to {out}")
 
 
 if __name__ == "__main__":
