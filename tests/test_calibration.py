@@ -97,3 +97,13 @@ def test_back_projection_follows_the_optical_frame(calibration):
     np.testing.assert_allclose(xyz[-1, -1], [1000 * (cam.width - 1 - cam.cx) / cam.fx,
                                              1000 * (cam.height - 1 - cam.cy) / cam.fy, 1000], rtol=1e-6)
     assert xyz[240, 639, 0] > 0 and xyz[479, 320, 1] > 0  # x right, y down
+
+
+def test_the_shipped_calibration_is_what_fpp_demo_makes(rig, patterns):
+    from fpp_nodes.core.workflow import simulated_calibration
+    from fpp_nodes.nodes.common import default_calibration_path
+    shipped = Calibration.load(default_calibration_path())
+    made, _ = simulated_calibration(rig, patterns, seed=0)
+    assert shipped.patterns == made.patterns and shipped.camera == made.camera
+    np.testing.assert_allclose(shipped.model.c, made.model.c, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(shipped.model.d, made.model.d, rtol=1e-9, atol=1e-15)

@@ -8,6 +8,7 @@ duplicated or out-of-order frame is dropped with a warning and counted, never mi
 """
 from __future__ import annotations
 
+import sys
 from collections import deque
 
 import numpy as np
@@ -107,6 +108,15 @@ class CaptureSequence(Node):
             header = Header(stamp=msg.header.stamp, frame_id=msg.header.frame_id)
             header.stamp.sec, header.stamp.nanosec = divmod(sequence.stamps_ns[0], 1_000_000_000)
             self.publisher.publish(numpy_to_image(sequence.images.reshape(k * h, w), header))
+
+
+    def destroy_node(self):
+        s = self.assembler.stats
+        # printed, not logged: at shutdown rosout may already be gone
+        print(f"[capture_sequence] frames in {s.frames_in}, sequences complete {s.completed}, dropped {s.dropped}"
+              f"{' ' + str(s.reasons) if s.reasons else ''}, frames matching no pattern {self.unmatched}",
+              file=sys.stderr, flush=True)
+        return super().destroy_node()
 
 
 def main(args=None):

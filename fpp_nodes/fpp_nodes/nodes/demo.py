@@ -31,13 +31,14 @@ def stamp_ns(msg) -> int:
 class Robot(Node):
     """Subscribes to everything a robot and its operator look at, noting when each message arrives."""
 
-    def __init__(self):
+    def __init__(self, depth_images: bool = True):
         super().__init__("demo_robot")
         self.frames, self.clouds, self.depths, self.truth = {}, [], {}, None
         clock = time.time_ns
         self.create_subscription(Image, Topics.CAMERA_IMAGE, lambda m: self.frames.__setitem__(stamp_ns(m), clock()), Qos.FRAMES)
         self.create_subscription(PointCloud2, Topics.POINTS, lambda m: self.clouds.append((m, clock())), Qos.LARGE)
-        self.create_subscription(Image, Topics.DEPTH, lambda m: self.depths.__setitem__(stamp_ns(m), m), Qos.LARGE)
+        if depth_images:
+            self.create_subscription(Image, Topics.DEPTH, lambda m: self.depths.__setitem__(stamp_ns(m), m), Qos.LARGE)
         self.create_subscription(Image, Topics.TRUTH, lambda m: setattr(self, "truth", image_to_numpy(m).copy()), Qos.LATCHED)
 
 
@@ -79,12 +80,13 @@ def per_cloud(robot: Robot, frames_per_sequence: int = 16) -> list[dict]:
     """Latency of each stage (ms) and accuracy of every cloud received, from the stamps (when each
     pattern was shown) and the arrival times here."""
     frame_stamps = np.array(sorted(robot.frames))
+    period = np.median(np.diff(frame_stamps)) if len(frame_stamps) > 1 else 0
     rows = []
     for cloud, arrived in robot.clouds:
         first = stamp_ns(cloud)
         k = np.searchsorted(frame_stamps, first) + frames_per_sequence - 1
-        if k >= len(frame_stamps):
-            continue  # its last frame was not seen here
+        if k >= len(frame_stamps) or frame_stamps[k] - first > 1.5 * (frames_per_sequence - 1) * period:
+            continue  # not all of its frames were seen here
         last = frame_stamps[k]
         z = cloud_to_xyz(cloud)[..., 2]
         ok = np.isfinite(z) & np.isfinite(robot.truth)
