@@ -1,6 +1,4 @@
 """rosbag2 record and replay: real bags, real nodes, identical clouds."""
-import os
-import subprocess
 
 import numpy as np
 import pytest

@@ -3,7 +3,6 @@ import pytest
 import yaml
 
 from fpp_nodes.core.calibration import Calibration, CalibrationError, RationalModel, back_project
-from fpp_nodes.core.phase import unwrap_temporal, wrapped_phase
 from fpp_nodes.core.simulation import plane_scene, render
 from fpp_nodes.core.workflow import calibrate_from_planes
 

@@ -1,8 +1,6 @@
 """The offline `fpp` tool as a user runs it: a subprocess, files in, files out, one-line errors."""
-import os
 import subprocess
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from fpp_nodes.core.phase import wrapped_phase
-from fpp_nodes.core.simulation import (Rig, SimulationError, make_scene, objects_scene, plane_scene, render,
+from fpp_nodes.core.simulation import (Rig, SimulationError, make_scene, plane_scene, render,
                                        scene_from_file)
 
 
@@ -11,9 +11,8 @@ def analytic_plane_phase(rig: Rig, patterns, depth_mm):
     """Phase a fronto-parallel plane shows at every pixel, written out without the Rig's own helpers:
     the projector is turned about the camera's y axis to face the point (0, 0, standoff)."""
     f = rig.focal_px
-    u, v = np.meshgrid(np.arange(rig.width), np.arange(rig.height))
+    u, _ = np.meshgrid(np.arange(rig.width), np.arange(rig.height))
     X = (u - (rig.width - 1) / 2) / f * depth_mm
-    Y = (v - (rig.height - 1) / 2) / f * depth_mm
     theta = np.arctan2(rig.baseline_mm, rig.standoff_mm)  # the projector looks back towards -x by theta
     dx = X - rig.baseline_mm
     xp = np.cos(theta) * dx + np.sin(theta) * depth_mm

@@ -11,7 +11,6 @@ from __future__ import annotations
 import sys
 from collections import deque
 
-import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 from std_msgs.msg import Header
@@ -103,7 +102,7 @@ class CaptureSequence(Node):
         if dropped:
             self.get_logger().warn(f"sequence dropped ({dropped}); {stats.dropped} dropped, "
                                    f"{stats.completed} complete so far")
-        if sequence is not None:
+        if sequence is not None and self.publisher.get_subscription_count() > 0:  # no copy for nobody
             k, h, w = sequence.images.shape
             header = Header(stamp=msg.header.stamp, frame_id=msg.header.frame_id)
             header.stamp.sec, header.stamp.nanosec = divmod(sequence.stamps_ns[0], 1_000_000_000)

@@ -42,6 +42,8 @@ class FringeCameraSim(Node):
         self.get_logger().info(f"scene {self.scene.name} (seed {seed}), {cam.width}x{cam.height}")
 
     def _on_pattern(self, msg: Image):
+        if self.image_pub.get_subscription_count() == 0:
+            return  # nobody looks: render nothing
         try:
             line = image_to_numpy(msg)
         except ImageError as e:
