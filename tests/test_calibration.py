@@ -100,8 +100,7 @@ def test_back_projection_follows_the_optical_frame(calibration):
 
 def test_the_shipped_calibration_is_what_fpp_demo_makes(rig, patterns):
     from fpp_nodes.core.workflow import simulated_calibration
-    from fpp_nodes.nodes.common import default_calibration_path
-    shipped = Calibration.load(default_calibration_path())
+        shipped = Calibration.load(default_calibration_path())
     made, _ = simulated_calibration(rig, patterns, seed=0)
     assert shipped.patterns == made.patterns and shipped.camera == made.camera
     np.testing.assert_allclose(shipped.model.c, made.model.c, rtol=1e-9, atol=1e-15)

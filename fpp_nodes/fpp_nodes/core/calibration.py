@@ -11,6 +11,7 @@ Here z is the depth along the camera's optical axis, in millimetres, (u, v) the 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,11 @@ from .patterns import PatternError, PatternSet
 TERMS = ("1", "phi", "u", "u*phi", "v", "v*phi", "u^2", "u^2*phi", "v^2", "v^2*phi", "u*v", "u*v*phi")
 FORMAT_NAME = "fpp_calibration"
 FORMAT_VERSION = 1
+
+
+def default_calibration_path() -> str:
+    """The simulated rig's calibration, shipped in the package (made by `fpp demo --seed 0`)."""
+    return str(resources.files("fpp_nodes") / "data" / "sim_calibration.yaml")
 
 
 class CalibrationError(ValueError):

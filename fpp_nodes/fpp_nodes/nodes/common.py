@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import sys
-from importlib import resources
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -13,18 +12,13 @@ from std_msgs.msg import String
 
 from fpp_msgs_py import Qos, Topics
 
-from ..core.calibration import Calibration, CalibrationError
+from ..core.calibration import Calibration, CalibrationError, default_calibration_path
 
 MESSAGE_TYPES = {"sensor_msgs/msg/Image": Image, "sensor_msgs/msg/CameraInfo": CameraInfo}
 
 
 class ConfigError(ValueError):
     """A parameter value a node cannot start or go on with."""
-
-
-def default_calibration_path() -> str:
-    """The calibration of the simulated rig that ships with the package (made by `fpp demo --seed 0`)."""
-    return str(resources.files("fpp_nodes") / "data" / "sim_calibration.yaml")
 
 
 def declare(node: Node, name: str, default, description: str, read_only: bool = False):

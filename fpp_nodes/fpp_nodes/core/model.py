@@ -1,0 +1,76 @@
+"""A single-shot depth model: an ONNX file and its card, run with onnxruntime (no torch).
+
+The card (<model>.yaml, written by training.export) says what the model expects; loading checks the
+file against the card's sha256, and every frame against the card's camera size.
+"""
+from __future__ import annotations
+
+import hashlib
+from importlib import resources
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+STRIDE = 32
+
+
+class ModelError(ValueError):
+    """A model or card that is missing, corrupt or does not fit the images."""
+
+
+def default_model_path() -> str:
+    """The model trained by the project's documented command, shipped in the package."""
+    return str(resources.files("fpp_nodes") / "data" / "models" / "unet.onnx")
+
+
+class DepthModel:
+    def __init__(self, path, providers=("CPUExecutionProvider",), threads: int = 2):
+        import onnxruntime as ort
+        path = Path(path)
+        card_path = path.with_suffix(".yaml")
+        if not path.is_file():
+            raise ModelError(f"model {path} does not exist")
+        if not card_path.is_file():
+            raise ModelError(f"model {path} has no card {card_path.name} beside it")
+        try:
+            self.card = yaml.safe_load(card_path.read_text())
+            expected_sha = self.card["sha256"]
+            self.downsample = int(self.card["input"]["downsample"])
+            camera = self.card["input"]["camera"]
+            self.size = (int(camera["width"]), int(camera["height"]))
+        except (yaml.YAMLError, KeyError, TypeError, ValueError) as e:
+            raise ModelError(f"model card {card_path} is malformed ({type(e).__name__}: {e})") from None
+        actual = hashlib.sha256(path.read_bytes()).hexdigest()
+        if actual != expected_sha:
+            raise ModelError(f"model {path} does not match its card: sha256 {actual[:12]}... != {str(expected_sha)[:12]}...")
+        available = ort.get_available_providers()
+        missing = [p for p in providers if p not in available]
+        if missing:
+            raise ModelError(f"execution providers {missing} are not available here (have {available})")
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads
+        try:
+            self.session = ort.InferenceSession(str(path), options, providers=list(providers))
+        except Exception as e:  # onnxruntime raises its own types for corrupt files
+            raise ModelError(f"cannot load model {path}: {str(e).splitlines()[0]}") from None
+        self.providers = self.session.get_providers()
+
+    def check(self, image: np.ndarray) -> None:
+        if image.ndim != 2 or (image.shape[1], image.shape[0]) != self.size:
+            raise ModelError(f"the model takes {self.size[0]}x{self.size[1]} images (its card), got "
+                             f"{'x'.join(map(str, image.shape[::-1]))}")
+        if image.dtype not in (np.uint8, np.uint16):
+            raise ModelError(f"the model takes mono8 or mono16 images, got {image.dtype}")
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        """Depth in mm (float32, camera size) of one fringe image."""
+        self.check(image)
+        x = image.astype(np.float32) * np.float32(1.0 / np.iinfo(image.dtype).max)
+        w, h = self.size[0] // self.downsample, self.size[1] // self.downsample
+        if self.downsample > 1:
+            x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA)
+        x = cv2.copyMakeBorder(x, 0, (-h) % STRIDE, 0, (-w) % STRIDE, cv2.BORDER_REPLICATE)
+        depth = self.session.run(["depth_mm"], {"image": x[None, None]})[0][0, 0, :h, :w]
+        return cv2.resize(depth, self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else depth

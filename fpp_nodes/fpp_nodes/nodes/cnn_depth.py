@@ -1,0 +1,83 @@
+"""cnn_depth: the single-shot path. One fringe image -> depth and point cloud through a trained
+network (ONNX, run with onnxruntime).
+
+Subscribes camera/image_raw (mono8/mono16: the first phase-shifted image of the highest frequency, as
+the network was trained), keeping only the newest frame (KEEP_LAST 1): under load older frames are
+dropped, never queued. Publishes depth/image (32FC1, metres), depth/camera_info and points (organized
+PointCloud2, metres), with the image's header. A frame of the wrong size or encoding is an error
+(throttled) and skipped; a missing, corrupt or mismatched model stops the node at start.
+Parameters: model (path; empty = the shipped default), providers (CPUExecutionProvider; CUDA where
+present), threads (onnxruntime intra-op threads), calibration (intrinsics for the cloud).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+from fpp_msgs_py import ImageError, Qos, Topics, camera_info, image_to_numpy, numpy_to_image, xyz_to_cloud
+
+from ..core.calibration import back_project
+from ..core.model import DepthModel, ModelError, default_model_path
+from .common import declare, load_calibration, run
+
+NEWEST_ONLY = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class CnnDepth(Node):
+    def __init__(self, **kwargs):
+        super().__init__("cnn_depth", **kwargs)
+        path = declare(self, "model", "", "ONNX model with its card beside it (empty: the shipped default)", True)
+        providers = declare(self, "providers", ["CPUExecutionProvider"], "onnxruntime execution providers", True)
+        threads = declare(self, "threads", 2, "onnxruntime intra-op threads", True)
+        if threads < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}")
+        self.calibration = load_calibration(self)
+        self.model = DepthModel(path or default_model_path(), providers, threads)
+        cam = self.calibration.camera
+        if (cam.width, cam.height) != self.model.size:
+            raise ModelError(f"the model was trained for {self.model.size[0]}x{self.model.size[1]} images, "
+                             f"the calibration's camera is {cam.width}x{cam.height}")
+        self.info = camera_info(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
+        self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
+        self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
+        self.points_pub = self.create_publisher(PointCloud2, Topics.POINTS, Qos.LARGE)
+        self.create_subscription(Image, Topics.CAMERA_IMAGE, self._on_image, NEWEST_ONLY)
+        self.processed, self.latencies_s = 0, []
+        self.get_logger().info(f"model {path or default_model_path()} ({self.model.card.get('architecture')}), "
+                               f"providers {self.model.providers}")
+
+    def _on_image(self, msg: Image):
+        want_depth = self.depth_pub.get_subscription_count() > 0
+        want_points = self.points_pub.get_subscription_count() > 0
+        if not (want_depth or want_points):
+            return
+        start = time.perf_counter()
+        try:
+            depth_mm = self.model(image_to_numpy(msg))
+        except (ImageError, ModelError) as e:
+            self.get_logger().error(f"image ignored: {e}", throttle_duration_sec=5.0)
+            return
+        if want_depth:
+            self.depth_pub.publish(numpy_to_image(depth_mm * np.float32(0.001), msg.header))
+        if want_points:
+            self.points_pub.publish(xyz_to_cloud(back_project(depth_mm, self.calibration.camera) * np.float32(0.001),
+                                                 msg.header))
+        self.info.header = msg.header
+        self.info_pub.publish(self.info)
+        self.processed += 1
+        self.latencies_s = (self.latencies_s + [time.perf_counter() - start])[-100:]
+        if self.processed % 100 == 0:
+            self.get_logger().info(f"{self.processed} frames, latency median "
+                                   f"{np.median(self.latencies_s) * 1000:.1f} ms")
+
+
+def main(args=None):
+    run(CnnDepth, args=args)
+
+
+if __name__ == "__main__":
+    main()

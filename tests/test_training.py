@@ -1,0 +1,109 @@
+"""The single-shot training chain on a tiny data set: data, networks, training, resume, safe
+checkpoints, torchrun with two CPU processes, ONNX export and parity, the model in onnxruntime."""
+import pickle
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from fpp_nodes.core.model import DepthModel, ModelError
+from training.dataset import decode_depth, encode_depth, load_sample, split_files, write_set
+from training.export import export
+from training.models import build, layer_counts, pad_to_stride
+from training.train import TrainConfig, load_checkpoint, train
+
+
+@pytest.fixture(scope="module")
+def tiny_set(tmp_path_factory):
+    return write_set(tmp_path_factory.mktemp("data"), "single", counts=(3, 1, 1), workers=1)
+
+
+@pytest.fixture(scope="module")
+def trained(tiny_set, tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    cfg = TrainConfig(data=str(tiny_set), out=str(out), arch="unet", width=4, epochs=1)
+    train(cfg)
+    return out, cfg
+
+
+def test_depth_encoding_round_trips_to_a_hundredth_of_a_millimetre():
+    depth = np.array([1100.004, 1234.567, np.nan, 1300.0], np.float32)
+    back = decode_depth(encode_depth(depth))
+    assert np.isnan(back[2]) and np.nanmax(np.abs(back - depth)) <= 0.005 + 1e-4
+
+
+def test_samples_pair_one_fringe_image_with_its_multi_shot_label(tiny_set):
+    files = split_files(tiny_set, "train")
+    assert len(files) == 3 and len(split_files(tiny_set, "test")) == 1
+    image, label, truth = load_sample(files[0])
+    assert image.shape == (480, 640) and image.dtype == np.uint8
+    ok = np.isfinite(label) & np.isfinite(truth)
+    assert ok.mean() > 0.9 and np.sqrt(np.mean((label - truth)[ok] ** 2)) < 0.06  # the multi-shot label is good
+    assert yaml.safe_load((tiny_set / "dataset.yaml").read_text())["counts"] == {"train": 3, "val": 1, "test": 1}
+
+
+@pytest.mark.parametrize("arch, convs, pools, transposes", [("aen", 23, 5, 5), ("unet", 23, 5, 5), ("fcn", 16, 5, 3)])
+def test_the_papers_networks(arch, convs, pools, transposes):
+    model = build(arch, width=4)
+    # AEN / UNet: 22 convolutions + the final 1x1, 5 max-pools, 5 transpose convolutions = 33 layers
+    assert layer_counts(model) == {"conv": convs, "maxpool": pools, "transpose": transposes}
+    image, (h, w) = pad_to_stride(torch.rand(2, 1, 100, 150))
+    assert image.shape[-2:] == (128, 160)
+    assert model(image)[..., :h, :w].shape == (2, 1, 100, 150)
+
+
+def test_training_writes_what_the_paper_shows(trained):
+    out, _ = trained
+    for name in ("last.pt", "best.pt", "losses.csv", "losses.png", "epochs/epoch_0001.png"):
+        assert (out / name).is_file(), name
+    ckpt = load_checkpoint(out / "last.pt")
+    assert ckpt["epoch"] == 1 and ckpt["config"]["arch"] == "unet" and np.isfinite(ckpt["history"][0]["val_rmse_mm"])
+
+
+def test_resume_goes_on_from_the_checkpoint(trained):
+    out, cfg = trained
+    cfg2 = TrainConfig(**{**cfg.__dict__, "epochs": 2})
+    train(cfg2, resume=str(out / "last.pt"))
+    ckpt = load_checkpoint(out / "last.pt")
+    assert ckpt["epoch"] == 2 and [h["epoch"] for h in ckpt["history"]] == [1, 2]
+
+
+def test_checkpoints_never_run_pickled_code(tmp_path):
+    class Evil:
+        def __reduce__(self):
+            return (print, ("pwned",))
+    path = tmp_path / "evil.pt"
+    path.write_bytes(pickle.dumps({"format": "fpp_checkpoint", "x": Evil()}))
+    with pytest.raises(ValueError, match="cannot load checkpoint"):
+        load_checkpoint(path)
+
+
+def test_torchrun_with_two_cpu_processes(tiny_set, tmp_path):
+    r = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "-m", "training.train",
+                        "--data", str(tiny_set), "--out", str(tmp_path), "--arch", "aen", "--width", "4", "--epochs", "1"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.count("epoch 1:") == 1  # only rank 0 reports and saves
+    assert load_checkpoint(tmp_path / "last.pt")["epoch"] == 1
+
+
+def test_export_parity_card_and_onnxruntime(trained, tmp_path):
+    out, _ = trained
+    card = export(str(out / "last.pt"), str(tmp_path / "m.onnx"))
+    assert card["parity"]["max_abs_diff_mm"] < 1e-3 and card["parity"]["size"] != [224, 320]
+    model = DepthModel(tmp_path / "m.onnx", threads=1)
+    depth = model(np.zeros((480, 640), np.uint8))
+    assert depth.shape == (480, 640) and depth.dtype == np.float32 and np.isfinite(depth).all()
+    with pytest.raises(ModelError, match="640x480"):
+        model(np.zeros((240, 320), np.uint8))
+    with pytest.raises(ModelError, match="mono8 or mono16"):
+        model(np.zeros((480, 640), np.float32))
+    (tmp_path / "m.onnx").write_bytes((tmp_path / "m.onnx").read_bytes()[:1000])
+    with pytest.raises(ModelError, match="does not match its card"):
+        DepthModel(tmp_path / "m.onnx")
+    (tmp_path / "m.yaml").unlink()
+    with pytest.raises(ModelError, match="has no card"):
+        DepthModel(tmp_path / "m.onnx")

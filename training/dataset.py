@@ -1,0 +1,137 @@
+"""Data sets made the way the paper makes them: the input is the first phase-shifted image of the
+highest frequency; the label is the multi-shot (PSP) reconstruction of the same scene from all the
+images; the simulator's exact depth is kept beside it, so label errors and network errors can both
+be measured. Shadowed and untrusted pixels are invalid in the label and are left out of the loss.
+
+    python -m training.dataset --out data/fpp --set single [--counts 540,60,72] [--workers 2]
+
+On disk (a folder per set and split, one file per sample):
+
+    <out>/<set>/dataset.yaml           what made it: set, counts, seeds, rig, pattern set, calibration
+    <out>/<set>/<split>/<seed>.npz     input  uint8 (H, W)   the fringe image
+                                       label  uint16 (H, W)  PSP depth, (mm - 1000) * 100, 0 = invalid
+                                       truth  uint16 (H, W)  exact depth, same encoding, 0 = shadow
+
+The uint16 encoding holds 1000.01-1655.35 mm in 0.01 mm steps (rounding adds 0.003 mm RMS).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import yaml
+from tqdm import tqdm
+
+from fpp_nodes.core.calibration import Calibration, default_calibration_path
+from fpp_nodes.core.reconstruct import PspReconstructor
+from fpp_nodes.core.simulation import Rig, make_scene, render
+
+SPLITS = ("train", "val", "test")
+# set name -> (scene kind, paper's counts, first seed); seeds never overlap between sets or splits
+SETS = {"single": ("sculpture", (540, 60, 72), 100_000), "multi": ("objects", (630, 70, 40), 200_000)}
+DEPTH_OFFSET_MM, DEPTH_STEP_MM = 1000.0, 0.01
+FORMAT_VERSION = 1
+
+
+def encode_depth(depth_mm: np.ndarray) -> np.ndarray:
+    code = np.rint((np.nan_to_num(depth_mm, nan=DEPTH_OFFSET_MM) - DEPTH_OFFSET_MM) / DEPTH_STEP_MM)
+    code = np.clip(code, 0, 65535).astype(np.uint16)
+    code[~np.isfinite(depth_mm)] = 0
+    return code
+
+
+def decode_depth(code: np.ndarray) -> np.ndarray:
+    depth = code.astype(np.float32) * np.float32(DEPTH_STEP_MM) + np.float32(DEPTH_OFFSET_MM)
+    depth[code == 0] = np.nan
+    return depth
+
+
+def load_sample(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(input uint8, label mm float32 NaN-invalid, truth mm float32 NaN-shadow) of one sample."""
+    with np.load(path, allow_pickle=False) as z:
+        return z["input"], decode_depth(z["label"]), decode_depth(z["truth"])
+
+
+def seed_of(set_name: str, split: str, i: int) -> int:
+    return SETS[set_name][2] + 10_000 * SPLITS.index(split) + i
+
+
+_worker = {}
+
+
+def _init(calibration_path: str):
+    rig = Rig()
+    _worker.update(rig=rig, patterns=rig.pattern_set(), psp=PspReconstructor(Calibration.load(calibration_path)))
+
+
+def make_sample(kind: str, seed: int) -> dict:
+    """Render one scene, reconstruct it with the multi-shot path, keep the first 100-fringe image."""
+    rig, patterns, psp = _worker["rig"], _worker["patterns"], _worker["psp"]
+    capture = render(rig, make_scene(rig, kind, seed), patterns, np.random.default_rng(seed))
+    label = psp(capture.images).depth_mm
+    truth = np.where(capture.valid, capture.depth_mm, np.nan)
+    return {"input": capture.images[(len(patterns.frequencies) - 1) * patterns.steps],
+            "label": encode_depth(label), "truth": encode_depth(truth)}
+
+
+def _write(job):
+    kind, seed, path = job
+    np.savez_compressed(path, **make_sample(kind, seed))
+    return path
+
+
+def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_path: str | None = None) -> Path:
+    """Make (or finish: existing samples are kept) one data set; returns its folder."""
+    kind, paper_counts, _ = SETS[set_name]
+    counts = tuple(counts or paper_counts)
+    calibration_path = calibration_path or default_calibration_path()
+    folder = Path(out) / set_name
+    jobs = []
+    for split, n in zip(SPLITS, counts):
+        (folder / split).mkdir(parents=True, exist_ok=True)
+        for i in range(n):
+            path = folder / split / f"{seed_of(set_name, split, i)}.npz"
+            if not path.exists():
+                jobs.append((kind, seed_of(set_name, split, i), path))
+    rig = Rig()
+    (folder / "dataset.yaml").write_text(yaml.safe_dump({
+        "format": "fpp_dataset", "version": FORMAT_VERSION, "set": set_name, "scene": kind,
+        "counts": dict(zip(SPLITS, counts)), "first_seeds": {s: seed_of(set_name, s, 0) for s in SPLITS},
+        "input": "first image of the highest frequency", "label": "multi-shot PSP depth",
+        "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},
+        "rig": rig.to_dict(), "calibration": Calibration.load(calibration_path).to_dict()}, sort_keys=False))
+    with ProcessPoolExecutor(workers, initializer=_init, initargs=(calibration_path,)) as pool:
+        for _ in tqdm(pool.map(_write, jobs), total=len(jobs), desc=f"{set_name} set", disable=None):
+            pass
+    return folder
+
+
+def split_files(folder, split: str) -> list[Path]:
+    return sorted((Path(folder) / split).glob("*.npz"))
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="python -m training.dataset", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", default="data/fpp")
+    parser.add_argument("--set", choices=sorted(SETS), action="append", help="default: both")
+    parser.add_argument("--counts", help="train,val,test (default: the paper's)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--calibration", help="calibration YAML (default: the simulated rig's)")
+    args = parser.parse_args(argv)
+    counts = None
+    if args.counts:
+        try:
+            counts = [int(c) for c in args.counts.split(",")]
+            assert len(counts) == 3 and min(counts) >= 0
+        except (ValueError, AssertionError):
+            sys.exit(f"dataset: --counts must be three non-negative integers train,val,test, got {args.counts!r}")
+    for name in args.set or sorted(SETS):
+        print(f"wrote {write_set(args.out, name, counts, args.workers, args.calibration)}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,151 @@
+"""The paper's three networks as small named blocks, so each forward reads like its figure.
+
+All take a (B, 1, H, W) fringe image scaled to [0, 1] (H, W multiples of 32), add two pixel-coordinate
+channels (u and v in [-1, 1] across the image: depth depends on where a pixel is, through the phase-
+to-depth model), and return (B, 1, H, W) depth in millimetres: the last layer's output o becomes
+depth_offset + depth_scale * o, so the exported model speaks millimetres.
+
+- AEN: encoder of 5 levels (two 3x3 convolutions, then 2x2 max-pooling), two convolutions at the
+  bottom, decoder of 5 levels (a 2x2 transpose convolution, then two convolutions), a final 1x1
+  convolution: 22 convolutions, 5 max-pools, 5 transpose convolutions, 1 output layer = 33 layers.
+- UNet: the AEN with each encoder level's output concatenated to the decoder's at the same scale.
+- FCN: a VGG-style encoder with no fully connected layers (fc6/fc7 as convolutions), scored at 1/8,
+  1/16 and 1/32 scale, the coarse score upsampled and summed with the finer ones (FCN-8s), then
+  upsampled 8x to the input size.
+"""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class DoubleConv(nn.Sequential):
+    def __init__(self, cin: int, cout: int, dropout: float = 0.0):
+        layers = [nn.Conv2d(cin, cout, 3, padding=1), nn.ReLU(inplace=True),
+                  nn.Conv2d(cout, cout, 3, padding=1), nn.ReLU(inplace=True)]
+        if dropout:
+            layers.append(nn.Dropout2d(dropout))
+        super().__init__(*layers)
+
+
+class Down(nn.Sequential):
+    def __init__(self, cin: int, cout: int):
+        super().__init__(nn.MaxPool2d(2), DoubleConv(cin, cout))
+
+
+class Up(nn.Module):
+    """Transpose convolution to twice the size, optionally concatenated with the skip, two convolutions."""
+
+    def __init__(self, cin: int, cout: int, skip: int = 0):
+        super().__init__()
+        self.up = nn.ConvTranspose2d(cin, cout, 2, stride=2)
+        self.conv = DoubleConv(cout + skip, cout)
+
+    def forward(self, x, skip=None):
+        x = self.up(x)
+        return self.conv(x if skip is None else torch.cat([x, skip], dim=1))
+
+
+def with_coordinates(image: torch.Tensor) -> torch.Tensor:
+    b, _, h, w = image.shape
+    v = torch.linspace(-1.0, 1.0, h, dtype=image.dtype, device=image.device).view(1, 1, h, 1).expand(b, 1, h, w)
+    u = torch.linspace(-1.0, 1.0, w, dtype=image.dtype, device=image.device).view(1, 1, 1, w).expand(b, 1, h, w)
+    return torch.cat([image, u, v], dim=1)
+
+
+class DepthHead(nn.Module):
+    """1x1 convolution to one channel, then millimetres."""
+
+    def __init__(self, cin: int, depth_offset: float, depth_scale: float):
+        super().__init__()
+        self.out = nn.Conv2d(cin, 1, 1)
+        self.depth_offset, self.depth_scale = depth_offset, depth_scale
+
+    def forward(self, x):
+        return self.depth_offset + self.depth_scale * self.out(x)
+
+
+class EncoderDecoder(nn.Module):
+    """AEN (skips=False) and UNet (skips=True): the same shape, with or without concatenation."""
+
+    def __init__(self, width: int = 16, skips: bool = True, dropout: float = 0.1,
+                 depth_offset: float = 1200.0, depth_scale: float = 50.0):
+        super().__init__()
+        c = [width * 2 ** i for i in range(6)]  # channels at full, 1/2, ... 1/32 scale
+        self.skips = skips
+        self.inc = DoubleConv(3, c[0])
+        self.downs = nn.ModuleList(Down(c[i], c[i + 1]) for i in range(4))
+        self.bottom = nn.Sequential(nn.MaxPool2d(2), DoubleConv(c[4], c[5], dropout))
+        self.ups = nn.ModuleList(Up(c[i + 1], c[i], c[i] if skips else 0) for i in reversed(range(5)))
+        self.head = DepthHead(c[0], depth_offset, depth_scale)
+
+    def forward(self, image):
+        x = self.inc(with_coordinates(image))
+        levels = [x]
+        for down in self.downs:
+            x = down(x)
+            levels.append(x)
+        x = self.bottom(x)
+        for up, skip in zip(self.ups, reversed(levels)):
+            x = up(x, skip if self.skips else None)
+        return self.head(x)
+
+
+class FCN(nn.Module):
+    """FCN-8s for regression: VGG-style blocks, convolutional fc6/fc7, skip sums, coarse upsampling."""
+
+    def __init__(self, width: int = 16, dropout: float = 0.1, depth_offset: float = 1200.0, depth_scale: float = 50.0):
+        super().__init__()
+        c = [width * 2 ** min(i, 4) for i in range(5)]
+        self.block1 = DoubleConv(3, c[0])
+        self.block2 = Down(c[0], c[1])
+        self.block3 = Down(c[1], c[2])  # 1/4
+        self.block4 = Down(c[2], c[3])  # 1/8
+        self.block5 = Down(c[3], c[4])  # 1/16
+        self.fc = nn.Sequential(nn.MaxPool2d(2), nn.Conv2d(c[4], 2 * c[4], 3, padding=1), nn.ReLU(inplace=True),
+                                nn.Dropout2d(dropout), nn.Conv2d(2 * c[4], 2 * c[4], 1), nn.ReLU(inplace=True))  # 1/32
+        score = c[2]
+        self.score32 = nn.Conv2d(2 * c[4], score, 1)
+        self.score16 = nn.Conv2d(c[4], score, 1)
+        self.score8 = nn.Conv2d(c[3], score, 1)
+        self.up2a = nn.ConvTranspose2d(score, score, 2, stride=2)
+        self.up2b = nn.ConvTranspose2d(score, score, 2, stride=2)
+        self.up8 = nn.ConvTranspose2d(score, score, 8, stride=8)
+        self.head = DepthHead(score, depth_offset, depth_scale)
+
+    def forward(self, image):
+        x8 = self.block4(self.block3(self.block2(self.block1(with_coordinates(image)))))
+        x16 = self.block5(x8)
+        x = self.up2a(self.score32(self.fc(x16))) + self.score16(x16)
+        x = self.up2b(x) + self.score8(x8)
+        return self.head(torch.relu(self.up8(x)))
+
+
+ARCHITECTURES = ("fcn", "aen", "unet")
+
+
+def build(architecture: str, width: int = 16, dropout: float = 0.1, depth_offset: float = 1200.0,
+          depth_scale: float = 50.0) -> nn.Module:
+    if architecture == "unet":
+        return EncoderDecoder(width, True, dropout, depth_offset, depth_scale)
+    if architecture == "aen":
+        return EncoderDecoder(width, False, dropout, depth_offset, depth_scale)
+    if architecture == "fcn":
+        return FCN(width, dropout, depth_offset, depth_scale)
+    raise ValueError(f"architecture must be one of {', '.join(ARCHITECTURES)}, got {architecture!r}")
+
+
+def layer_counts(model: nn.Module) -> dict:
+    kinds = {"conv": nn.Conv2d, "maxpool": nn.MaxPool2d, "transpose": nn.ConvTranspose2d}
+    return {k: sum(isinstance(m, t) and not isinstance(m, nn.ConvTranspose2d) if k == "conv" else isinstance(m, t)
+                   for m in model.modules()) for k, t in kinds.items()}
+
+
+STRIDE = 32  # every network halves the image five times
+
+
+def pad_to_stride(image: torch.Tensor, stride: int = STRIDE) -> tuple[torch.Tensor, tuple[int, int]]:
+    """Replicate-pad (B, C, H, W) on the bottom and right to multiples of stride; returns the padded
+    image and the original (H, W) to crop the output back to."""
+    h, w = image.shape[-2:]
+    return nn.functional.pad(image, (0, (-w) % stride, 0, (-h) % stride), mode="replicate"), (h, w)

@@ -1,0 +1,276 @@
+"""Training after the paper: mini-batches of 2, MSE loss on the valid label pixels (or binary cross-
+entropy on labels normalised to [0, 1]), learning rate halved when the validation loss has not improved
+for `patience` epochs, augmentation, weight decay, dropout. Every epoch: a checkpoint that describes
+itself (config, weights, optimizer, metrics; loaded with weights_only=True, so no pickle runs), the
+prediction of one fixed test image as a picture (the paper's Visualization 2), the loss curves as CSV
+and PNG. Resume with --resume. Several processes or machines: launch with torchrun
+(DistributedDataParallel, gloo on the CPU, nccl on GPUs).
+
+    python -m training.train --data data/fpp/single --arch unet --width 16 --epochs 300 --out runs/unet
+    torchrun --nproc_per_node 2 -m training.train ...
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import DataLoader, Dataset, DistributedSampler
+from tqdm import tqdm
+
+from fpp_nodes.core import io
+
+from .dataset import load_sample, split_files
+from .models import ARCHITECTURES, build, pad_to_stride
+
+BCE_RANGE_MM = (1100.0, 1300.0)  # labels map to [0, 1] over this depth range for the BCE loss
+
+
+@dataclass
+class TrainConfig:
+    data: str = "data/fpp/single"
+    out: str = "runs/unet"
+    arch: str = "unet"
+    width: int = 16
+    downsample: int = 2  # train and infer at 1/downsample of the camera's resolution
+    epochs: int = 300
+    batch_size: int = 2
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    dropout: float = 0.1
+    patience: int = 20
+    loss: str = "mse"
+    augment: bool = True
+    limit: int = 0  # use only the first N training samples (0: all)
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.arch not in ARCHITECTURES:
+            raise ValueError(f"arch must be one of {ARCHITECTURES}, got {self.arch!r}")
+        if self.loss not in ("mse", "bce"):
+            raise ValueError(f"loss must be mse or bce, got {self.loss!r}")
+        for name in ("width", "downsample", "epochs", "batch_size", "patience"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+
+def shrink(image: np.ndarray, factor: int, depth: bool = False) -> np.ndarray:
+    """Downsample: area average for the fringe image, nearest for depth (never mixes two surfaces)."""
+    if factor == 1:
+        return image
+    size = (image.shape[1] // factor, image.shape[0] // factor)
+    return cv2.resize(image, size, interpolation=cv2.INTER_NEAREST if depth else cv2.INTER_AREA)
+
+
+class FringeDepthSet(Dataset):
+    """(image [0, 1], label mm, truth mm) tensors at 1/downsample resolution, all held in memory."""
+
+    def __init__(self, files, downsample: int, augment: bool = False, seed: int = 0):
+        self.items = []
+        for f in files:
+            image, label, truth = load_sample(f)
+            self.items.append((shrink(image, downsample).astype(np.float32) / 255.0,
+                               shrink(label, downsample, True), shrink(truth, downsample, True)))
+        self.augment = augment
+        self.rng = np.random.default_rng(seed)
+
+    def __len__(self):
+        return len(self.items)
+
+    def __getitem__(self, i):
+        image, label, truth = self.items[i]
+        if self.augment:  # photometric only: moving pixels would move them off the calibration
+            image = image * self.rng.uniform(0.8, 1.2) + self.rng.uniform(-0.04, 0.04)
+            image = image + self.rng.normal(0, self.rng.uniform(0, 0.008), image.shape)
+            image = np.clip(image, 0, 1).astype(np.float32)
+        return torch.from_numpy(image)[None], torch.from_numpy(label)[None], torch.from_numpy(truth)[None]
+
+
+def masked_loss(pred_mm, label_mm, kind: str):
+    valid = torch.isfinite(label_mm)
+    if kind == "bce":
+        lo, hi = BCE_RANGE_MM
+        target = ((label_mm[valid] - lo) / (hi - lo)).clamp(0, 1)
+        logits = (pred_mm[valid] - (lo + hi) / 2) / ((hi - lo) / 8)
+        return torch.nn.functional.binary_cross_entropy_with_logits(logits, target)
+    return torch.mean(((pred_mm[valid] - label_mm[valid]) / 10.0) ** 2)  # in cm^2, a well-scaled number
+
+
+def predict(model, image):
+    padded, (h, w) = pad_to_stride(image)
+    return model(padded)[..., :h, :w]
+
+
+def errors_mm(pred, reference):
+    """(sum of squared error, sum of relative error, pixel count) over pixels valid in the reference."""
+    ok = torch.isfinite(reference)
+    d = (pred[ok] - reference[ok]).double()
+    return float((d * d).sum()), float((d.abs() / reference[ok].double()).sum()), int(ok.sum())
+
+
+@torch.no_grad()
+def evaluate(model, loader, device) -> dict:
+    """RMSE (mm) and MRE against the labels and against the exact depth."""
+    model.eval()
+    acc = np.zeros((2, 3))
+    for image, label, truth in loader:
+        pred = predict(model, image.to(device)).cpu()
+        acc[0] += errors_mm(pred, label)
+        acc[1] += errors_mm(pred, truth)
+    return {"rmse_mm": math.sqrt(acc[0, 0] / max(acc[0, 2], 1)), "mre": float(acc[0, 1] / max(acc[0, 2], 1)),
+            "truth_rmse_mm": math.sqrt(acc[1, 0] / max(acc[1, 2], 1)), "truth_mre": float(acc[1, 1] / max(acc[1, 2], 1))}
+
+
+def save_checkpoint(path, model, optimizer, scheduler, config: TrainConfig, epoch: int, history: list, seconds: float):
+    net = model.module if isinstance(model, DistributedDataParallel) else model
+    tmp = Path(str(path) + ".tmp")
+    torch.save({"format": "fpp_checkpoint", "version": 1, "config": asdict(config), "epoch": epoch,
+                "model": net.state_dict(), "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
+                "history": history, "train_seconds": seconds}, tmp)
+    tmp.replace(path)  # never a half-written checkpoint
+
+
+def load_checkpoint(path) -> dict:
+    """A checkpoint of ours, loaded without running any pickled code."""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:
+        raise ValueError(f"cannot load checkpoint {path}: {type(e).__name__}: {str(e).splitlines()[0]}") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != "fpp_checkpoint":
+        raise ValueError(f"{path} is not an fpp checkpoint")
+    return ckpt
+
+
+def model_from_checkpoint(ckpt: dict):
+    cfg = TrainConfig(**{k: v for k, v in ckpt["config"].items() if k in {f.name for f in fields(TrainConfig)}})
+    model = build(cfg.arch, cfg.width, cfg.dropout)
+    model.load_state_dict(ckpt["model"])
+    return model.eval(), cfg
+
+
+def write_curves(out: Path, history: list) -> None:
+    with open(out / "losses.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(history[0]))
+        writer.writeheader()
+        writer.writerows(history)
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6, 4))
+    epochs = [h["epoch"] for h in history]
+    ax.plot(epochs, [h["train_loss"] for h in history], label="train loss")
+    ax.plot(epochs, [h["val_loss"] for h in history], label="validation loss")
+    ax.set_yscale("log")
+    ax.set_xlabel("epoch")
+    ax.legend()
+    ax2 = ax.twinx()
+    ax2.plot(epochs, [h["val_rmse_mm"] for h in history], "k:", label="validation RMSE")
+    ax2.set_ylabel("validation RMSE vs label (mm)")
+    fig.tight_layout()
+    fig.savefig(out / "losses.png", dpi=100)
+    plt.close(fig)
+
+
+def train(config: TrainConfig, resume: str | None = None) -> dict:
+    distributed = int(os.environ.get("WORLD_SIZE", "1")) > 1
+    if distributed:
+        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    rank = dist.get_rank() if distributed else 0
+    device = torch.device(f"cuda:{int(os.environ.get('LOCAL_RANK', 0))}" if torch.cuda.is_available() else "cpu")
+    torch.manual_seed(config.seed)
+    out = Path(config.out)
+    if rank == 0:
+        (out / "epochs").mkdir(parents=True, exist_ok=True)
+
+    train_files = split_files(config.data, "train")[: config.limit or None]
+    val_files, test_files = split_files(config.data, "val"), split_files(config.data, "test")
+    if not train_files or not val_files:
+        raise ValueError(f"{config.data} has no train or val samples (make them with python -m training.dataset)")
+    train_set = FringeDepthSet(train_files, config.downsample, config.augment, config.seed + rank)
+    val_set = FringeDepthSet(val_files, config.downsample)
+    sampler = DistributedSampler(train_set, seed=config.seed) if distributed else None
+    loader = DataLoader(train_set, config.batch_size, shuffle=sampler is None, sampler=sampler)
+    val_loader = DataLoader(val_set, config.batch_size)
+    showcase = FringeDepthSet((test_files or val_files)[:1], config.downsample)[0]  # one fixed test image
+
+    model = build(config.arch, config.width, config.dropout).to(device)
+    optimizer = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, factor=0.5, patience=config.patience)
+    history, start_epoch, seconds = [], 0, 0.0
+    if resume:
+        ckpt = load_checkpoint(resume)
+        model.load_state_dict(ckpt["model"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        scheduler.load_state_dict(ckpt["scheduler"])
+        history, start_epoch, seconds = ckpt["history"], ckpt["epoch"], ckpt["train_seconds"]
+    if distributed:
+        model = DistributedDataParallel(model)
+
+    best = min((h["val_loss"] for h in history), default=float("inf"))
+    for epoch in range(start_epoch + 1, config.epochs + 1):
+        started = time.perf_counter()
+        model.train()
+        if sampler is not None:
+            sampler.set_epoch(epoch)
+        total, batches = 0.0, 0
+        for image, label, _ in tqdm(loader, desc=f"epoch {epoch}/{config.epochs}", leave=False, disable=None if rank == 0 else True):
+            optimizer.zero_grad()
+            loss = masked_loss(predict(model, image.to(device)), label.to(device), config.loss)
+            loss.backward()
+            optimizer.step()
+            total, batches = total + loss.item(), batches + 1
+        seconds += time.perf_counter() - started
+        metrics = evaluate(model, val_loader, device)
+        with torch.no_grad():
+            val_loss = float(np.mean([masked_loss(predict(model, i.to(device)), l.to(device), config.loss).item()
+                                      for i, l, _ in val_loader]))
+        scheduler.step(val_loss)
+        if rank != 0:
+            continue
+        history.append({"epoch": epoch, "train_loss": total / max(batches, 1), "val_loss": val_loss,
+                        "val_rmse_mm": metrics["rmse_mm"], "val_mre": metrics["mre"],
+                        "lr": optimizer.param_groups[0]["lr"], "seconds": seconds})
+        net = model.module if distributed else model
+        net.eval()
+        with torch.no_grad():
+            shown = predict(net, showcase[0][None].to(device))[0, 0].cpu().numpy()
+        cv2.imwrite(str(out / "epochs" / f"epoch_{epoch:04d}.png"),
+                    np.hstack([io.depth_picture(showcase[1][0].numpy()), io.depth_picture(shown)]))
+        save_checkpoint(out / "last.pt", model, optimizer, scheduler, config, epoch, history, seconds)
+        if val_loss < best:
+            best = val_loss
+            save_checkpoint(out / "best.pt", model, optimizer, scheduler, config, epoch, history, seconds)
+        write_curves(out, history)
+        print(f"epoch {epoch}: train loss {history[-1]['train_loss']:.4g}, val loss {val_loss:.4g}, "
+              f"val RMSE {metrics['rmse_mm']:.3f} mm, lr {history[-1]['lr']:.2g}, {seconds:.0f} s", flush=True)
+    if distributed:
+        dist.destroy_process_group()
+    return history[-1] if history else {}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="python -m training.train", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    for f in fields(TrainConfig):
+        kind = {"bool": lambda s: s.lower() in ("1", "true", "yes")}.get(f.type, {"int": int, "float": float}.get(f.type, str))
+        parser.add_argument(f"--{f.name.replace('_', '-')}", type=kind, default=f.default)
+    parser.add_argument("--resume", help="a last.pt to go on from")
+    args = vars(parser.parse_args(argv))
+    resume = args.pop("resume")
+    try:
+        train(TrainConfig(**args), resume)
+    except ValueError as e:
+        raise SystemExit(f"train: error: {e}")
+
+
+if __name__ == "__main__":
+    main()
