@@ -8,7 +8,7 @@ WS_STAMP := ros_ws/install/.built
 BENCH_VENV := .venv-opencv
 BENCH_STAMP := $(BENCH_VENV)/.installed
 
-.PHONY: setup demo offline-demo test bench bench-stream constraints clean
+.PHONY: setup demo offline-demo test bench bench-stream default-model constraints clean
 
 setup: $(STAMP) $(WS_STAMP)
 
@@ -48,6 +48,14 @@ bench: $(BENCH_STAMP)
 
 bench-stream: setup
 	bash -c 'source scripts/env.bash && python scripts/bench_stream.py'
+
+# The shipped default single-shot model (fpp_nodes/fpp_nodes/data/models/unet.onnx + card): the data
+# set the paper's size, then a small UNet at half resolution, as far as the CPU gets in DEFAULT_EPOCHS.
+DEFAULT_EPOCHS ?= 40
+default-model: setup
+	$(PY) -m training.dataset --out data/fpp --set single
+	$(PY) -m training.train --data data/fpp/single --arch unet --width 8 --epochs $(DEFAULT_EPOCHS) --out runs/default-unet
+	$(PY) -m training.export runs/default-unet/best.pt --out fpp_nodes/fpp_nodes/data/models/unet.onnx
 
 # Re-pin the transitive dependencies after changing requirements.txt.
 constraints: setup

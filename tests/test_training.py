@@ -107,3 +107,44 @@ def test_export_parity_card_and_onnxruntime(trained, tmp_path):
     (tmp_path / "m.yaml").unlink()
     with pytest.raises(ModelError, match="has no card"):
         DepthModel(tmp_path / "m.onnx")
+
+
+def test_evaluate_prints_table_1(trained, tiny_set):
+    out, _ = trained
+    r = subprocess.run([sys.executable, "-m", "training.evaluate", "--data", str(tiny_set), str(out / "last.pt")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rows = {line[:28].strip(): line[28:].split() for line in r.stdout.splitlines()}
+    assert rows[""] == ["UNET", "FTP", "multi-shot"]
+    assert float(rows["Test RMSE vs exact (mm)"][2]) < 0.06  # the multi-shot label against the exact depth
+    assert all(np.isfinite(float(v)) for v in rows["Test RMSE (mm)"])
+
+
+def test_cnn_depth_node(trained, tmp_path, ros_graph):
+    """The node in its own process: a frame in, depth and cloud out; bad frames are errors it survives;
+    a corrupt model stops it with one line."""
+    from sensor_msgs.msg import Image, PointCloud2
+    from std_msgs.msg import Header
+    from fpp_msgs_py import Qos, Topics, image_to_numpy, numpy_to_image
+    out, _ = trained
+    export(str(out / "last.pt"), str(tmp_path / "m.onnx"))
+    procs, robot = ros_graph
+    procs.run("cnn_depth", "-p", f"model:={tmp_path / 'm.onnx'}", "-p", "threads:=1")
+    depth, clouds = [], []
+    robot.node.create_subscription(Image, Topics.DEPTH, depth.append, Qos.LARGE)
+    robot.node.create_subscription(PointCloud2, Topics.POINTS, clouds.append, Qos.LARGE)
+    pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
+    assert robot.spin_until(lambda: pub.get_subscription_count() > 0, 30)
+    image, _, _ = load_sample(split_files(trained[1].data, "test")[0])
+    for bad in (np.zeros((240, 320), np.uint8), np.zeros((480, 640), np.float32)):
+        pub.publish(numpy_to_image(bad, Header(frame_id="camera_optical_frame")))
+        robot.spin_until(lambda: False, 0.5)  # one at a time: the node keeps only the newest frame
+    pub.publish(numpy_to_image(image, Header(frame_id="camera_optical_frame")))
+    assert robot.spin_until(lambda: depth and clouds, 30), procs.logs()
+    d = image_to_numpy(depth[0])
+    assert d.shape == (480, 640) and 1.0 < np.nanmedian(d) < 1.4 and clouds[0].height == 480
+    assert "image ignored" in procs.logs()
+    (tmp_path / "bad.onnx").write_bytes(b"not a model")
+    bad = procs.run("cnn_depth", "-p", f"model:={tmp_path / 'bad.onnx'}")
+    assert bad.wait(timeout=60) == 2
+    assert "has no card" in procs.logs() and "Traceback" not in procs.logs()

@@ -118,15 +118,18 @@ def errors_mm(pred, reference):
 
 
 @torch.no_grad()
-def evaluate(model, loader, device) -> dict:
-    """RMSE (mm) and MRE against the labels and against the exact depth."""
+def evaluate(model, loader, device, loss_kind: str = "mse") -> dict:
+    """Loss, RMSE (mm) and MRE against the labels and against the exact depth."""
     model.eval()
-    acc = np.zeros((2, 3))
+    acc, losses = np.zeros((2, 3)), []
     for image, label, truth in loader:
-        pred = predict(model, image.to(device)).cpu()
+        pred = predict(model, image.to(device))
+        losses.append(masked_loss(pred, label.to(device), loss_kind).item())
+        pred = pred.cpu()
         acc[0] += errors_mm(pred, label)
         acc[1] += errors_mm(pred, truth)
-    return {"rmse_mm": math.sqrt(acc[0, 0] / max(acc[0, 2], 1)), "mre": float(acc[0, 1] / max(acc[0, 2], 1)),
+    return {"loss": float(np.mean(losses)), "rmse_mm": math.sqrt(acc[0, 0] / max(acc[0, 2], 1)),
+            "mre": float(acc[0, 1] / max(acc[0, 2], 1)),
             "truth_rmse_mm": math.sqrt(acc[1, 0] / max(acc[1, 2], 1)), "truth_mre": float(acc[1, 1] / max(acc[1, 2], 1))}
 
 
@@ -229,10 +232,8 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
             optimizer.step()
             total, batches = total + loss.item(), batches + 1
         seconds += time.perf_counter() - started
-        metrics = evaluate(model, val_loader, device)
-        with torch.no_grad():
-            val_loss = float(np.mean([masked_loss(predict(model, i.to(device)), l.to(device), config.loss).item()
-                                      for i, l, _ in val_loader]))
+        metrics = evaluate(model, val_loader, device, config.loss)
+        val_loss = metrics["loss"]
         scheduler.step(val_loss)
         if rank != 0:
             continue
