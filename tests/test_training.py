@@ -148,3 +148,34 @@ def test_cnn_depth_node(trained, tmp_path, ros_graph):
     bad = procs.run("cnn_depth", "-p", f"model:={tmp_path / 'bad.onnx'}")
     assert bad.wait(timeout=60) == 2
     assert "has no card" in procs.logs() and "Traceback" not in procs.logs()
+
+
+def test_a_data_set_from_a_recorded_bag(tmp_path):
+    """What a user with real hardware does: record full sequences, label them with the multi-shot path."""
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Header
+    from fpp_msgs_py import numpy_to_image
+    from fpp_nodes.bag import BagWriter
+    from fpp_nodes.core.calibration import Calibration, default_calibration_path
+    from fpp_nodes.core.patterns import line_image, pattern_lines
+    from fpp_nodes.core.simulation import Rig, make_scene, render
+    from training.dataset import write_bag_set
+    rig = Rig()
+    patterns = rig.pattern_set()
+    capture = render(rig, make_scene(rig, "objects", 21), patterns, np.random.default_rng(21))
+    writer = BagWriter(tmp_path / "bag")
+    writer.write_calibration(Calibration.load(default_calibration_path()).to_yaml(), 0)
+    t = 1_000_000_000
+    for k in [5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15] + list(range(16)):  # joins mid-sequence, then one whole
+        header = Header(frame_id="camera_optical_frame")
+        header.stamp.sec, header.stamp.nanosec = divmod(t, 1_000_000_000)
+        writer.write("/projector/pattern", "sensor_msgs/msg/Image", t,
+                     serialize_message(numpy_to_image(line_image(patterns, pattern_lines(patterns)[k]), header)))
+        writer.write("/camera/image_raw", "sensor_msgs/msg/Image", t + 1000, serialize_message(numpy_to_image(capture.images[k], header)))
+        t += 33_000_000
+    writer.close()
+    assert write_bag_set(tmp_path / "bag", tmp_path / "set") == 1
+    image, label, truth = load_sample(split_files(tmp_path / "set", "train")[0])
+    np.testing.assert_array_equal(image, capture.images[12])
+    ok = np.isfinite(label) & capture.valid
+    assert not np.isfinite(truth).any() and np.sqrt(np.mean((label - capture.depth_mm)[ok] ** 2)) < 0.06

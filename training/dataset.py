@@ -4,6 +4,7 @@ images; the simulator's exact depth is kept beside it, so label errors and netwo
 be measured. Shadowed and untrusted pixels are invalid in the label and are left out of the loss.
 
     python -m training.dataset --out data/fpp --set single [--counts 540,60,72] [--workers 2]
+    python -m training.dataset --out data/my_rig --from-bag bags/run1 [--split train]
 
 On disk (a folder per set and split, one file per sample):
 
@@ -109,6 +110,54 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
     return folder
 
 
+def write_bag_set(bag, out, split: str = "train", calibration_path: str | None = None,
+                  max_time_offset_s: float = 0.005) -> int:
+    """A data set from a recorded bag of full fringe sequences (the path of a user with real hardware:
+    record, label with multi-shot, train). Frames are assembled into sequences as capture_sequence
+    does; each complete sequence becomes a sample whose label is its multi-shot reconstruction. There
+    is no exact depth for a real scene: truth is all 0 (invalid). Returns the number of samples."""
+    from fpp_msgs_py import image_to_numpy  # the deserialized messages have sensor_msgs' fields
+
+    from fpp_nodes.bag import TYPESTORE, read_bag
+    from fpp_nodes.core.sequence import SequenceAssembler, index_by_line
+
+    recording = read_bag(bag)
+    calibration = (Calibration.from_yaml(recording.calibration_yaml) if calibration_path is None and recording.calibration_yaml
+                   else Calibration.load(calibration_path or default_calibration_path()))
+    patterns = calibration.patterns
+    psp, lines, assembler = PspReconstructor(calibration), index_by_line(patterns), SequenceAssembler(patterns.count)
+    shown, count = [], 0
+    folder = Path(out) / split
+    folder.mkdir(parents=True, exist_ok=True)
+    for topic, msgtype, _, data in recording.messages:
+        if msgtype != "sensor_msgs/msg/Image":
+            continue
+        msg = TYPESTORE.deserialize_cdr(data, msgtype)
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        image = image_to_numpy(msg)
+        if topic.endswith("projector/pattern"):
+            if image.tobytes() in lines:
+                shown.append((stamp, lines[image.tobytes()]))
+            continue
+        match = min(shown[-4 * patterns.count:], key=lambda e: abs(e[0] - stamp), default=None)
+        if match is None or abs(match[0] - stamp) > max_time_offset_s * 1e9:
+            continue
+        sequence, _ = assembler.add(match[1], stamp, image.copy())
+        if sequence is not None:
+            label = psp(sequence.images).depth_mm
+            np.savez_compressed(folder / f"{sequence.stamps_ns[0]}.npz",
+                                input=sequence.images[(len(patterns.frequencies) - 1) * patterns.steps],
+                                label=encode_depth(label), truth=np.zeros(label.shape, np.uint16))
+            count += 1
+    (Path(out) / "dataset.yaml").write_text(yaml.safe_dump({
+        "format": "fpp_dataset", "version": FORMAT_VERSION, "set": "bag", "bag": str(bag),
+        "counts": {split: count}, "input": "first image of the highest frequency", "label": "multi-shot PSP depth",
+        "truth": "none (a recorded scene): all 0", "sequences_dropped": assembler.stats.dropped,
+        "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},
+        "calibration": calibration.to_dict()}, sort_keys=False))
+    return count
+
+
 def split_files(folder, split: str) -> list[Path]:
     return sorted((Path(folder) / split).glob("*.npz"))
 
@@ -120,8 +169,14 @@ def main(argv=None):
     parser.add_argument("--set", choices=sorted(SETS), action="append", help="default: both")
     parser.add_argument("--counts", help="train,val,test (default: the paper's)")
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--calibration", help="calibration YAML (default: the simulated rig's)")
+    parser.add_argument("--calibration", help="calibration YAML (default: the simulated rig's, or a bag's own)")
+    parser.add_argument("--from-bag", help="make a set from a recorded bag of fringe sequences instead")
+    parser.add_argument("--split", default="train", help="the split a bag's samples go to")
     args = parser.parse_args(argv)
+    if args.from_bag:
+        n = write_bag_set(args.from_bag, args.out, args.split, args.calibration)
+        print(f"wrote {n} samples from {args.from_bag} to {Path(args.out) / args.split}")
+        return
     counts = None
     if args.counts:
         try:

@@ -12,6 +12,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .patterns import PatternSet, line_image, pattern_lines
+
+
+def index_by_line(patterns: PatternSet) -> dict[bytes, int]:
+    """Which pattern a projector shows, from the bytes of its line image (1 x L or L x 1)."""
+    return {line_image(patterns, line).tobytes(): i for i, line in enumerate(pattern_lines(patterns))}
+
 
 @dataclass
 class SequenceStats:

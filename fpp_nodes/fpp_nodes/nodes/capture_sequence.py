@@ -17,8 +17,7 @@ from std_msgs.msg import Header
 
 from fpp_msgs_py import ImageError, Qos, Topics, image_to_numpy, numpy_to_image
 
-from ..core.patterns import line_image, pattern_lines
-from ..core.sequence import SequenceAssembler
+from ..core.sequence import SequenceAssembler, index_by_line
 from .common import declare, follow_calibration, load_calibration, on_set, positive, run
 
 
@@ -45,7 +44,7 @@ class CaptureSequence(Node):
     def _use(self, calibration):
         patterns = calibration.patterns
         self.calibration = calibration
-        self.index_of_line = {line_image(patterns, line).tobytes(): i for i, line in enumerate(pattern_lines(patterns))}
+        self.index_of_line = index_by_line(patterns)
         self.assembler = SequenceAssembler(patterns.count)
         self.shown: deque[tuple[int, int]] = deque(maxlen=4 * patterns.count)  # (stamp ns, pattern index)
 
