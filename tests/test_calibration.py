@@ -99,8 +99,9 @@ def test_back_projection_follows_the_optical_frame(calibration):
 
 
 def test_the_shipped_calibration_is_what_fpp_demo_makes(rig, patterns):
+    from fpp_nodes.core.calibration import default_calibration_path
     from fpp_nodes.core.workflow import simulated_calibration
-        shipped = Calibration.load(default_calibration_path())
+    shipped = Calibration.load(default_calibration_path())
     made, _ = simulated_calibration(rig, patterns, seed=0)
     assert shipped.patterns == made.patterns and shipped.camera == made.camera
     np.testing.assert_allclose(shipped.model.c, made.model.c, rtol=1e-9, atol=1e-15)
