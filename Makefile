@@ -8,7 +8,7 @@ WS_STAMP := ros_ws/install/.built
 BENCH_VENV := .venv-opencv
 BENCH_STAMP := $(BENCH_VENV)/.installed
 
-.PHONY: setup demo offline-demo test bench bench-stream default-model constraints clean
+.PHONY: setup demo offline-demo test bench bench-stream bench-cnn default-model constraints clean
 
 setup: $(STAMP) $(WS_STAMP)
 
@@ -48,6 +48,9 @@ bench: $(BENCH_STAMP)
 
 bench-stream: setup
 	bash -c 'source scripts/env.bash && python scripts/bench_stream.py'
+
+bench-cnn: setup
+	bash -c 'source scripts/env.bash && python scripts/bench_cnn.py'
 
 # The shipped default single-shot model (fpp_nodes/fpp_nodes/data/models/unet.onnx + card): the data
 # set the paper's size, then a small UNet at half resolution, as far as the CPU gets in DEFAULT_EPOCHS.

@@ -13,6 +13,7 @@ class Topics:
     CAMERA_IMAGE = "camera/image_raw"  # sensor_msgs/Image: a fringe image (mono8 / mono16)
     CAMERA_INFO = "camera/camera_info"
     SEQUENCE = "fringe_sequence"  # sensor_msgs/Image: a complete sequence, K images stacked vertically
+    SINGLE = "fringe_single"  # sensor_msgs/Image: of each complete sequence, the single-shot input image
     DEPTH = "depth/image"  # sensor_msgs/Image 32FC1, metres, NaN invalid
     DEPTH_INFO = "depth/camera_info"
     POINTS = "points"  # sensor_msgs/PointCloud2, organized, metres

@@ -3,7 +3,8 @@
 Subscribes projector/pattern (which pattern was shown when) and camera/image_raw. A frame belongs to
 the pattern shown within max_time_offset of its stamp; its index comes from matching that pattern
 against the calibration's pattern set. Publishes fringe_sequence (sensor_msgs/Image): the K frames
-stacked vertically (height K x H), stamped with the first frame's time. A sequence with a missing,
+stacked vertically (height K x H), stamped with the first frame's time, and fringe_single: its first
+image of the highest frequency (the single-shot input), with that frame's stamp. A sequence with a missing,
 duplicated or out-of-order frame is dropped with a warning and counted, never mixed into the next.
 """
 from __future__ import annotations
@@ -38,6 +39,7 @@ class CaptureSequence(Node):
         self.waiting: deque[Image] = deque(maxlen=8)  # frames that arrived before their pattern event
         self.unmatched = 0
         self.publisher = self.create_publisher(Image, Topics.SEQUENCE, Qos.LARGE)
+        self.single_publisher = self.create_publisher(Image, Topics.SINGLE, Qos.LARGE)
         self.create_subscription(Image, Topics.PATTERN, self._on_pattern, Qos.FRAMES)
         self.create_subscription(Image, Topics.CAMERA_IMAGE, self._on_frame, Qos.FRAMES)
 
@@ -101,11 +103,18 @@ class CaptureSequence(Node):
         if dropped:
             self.get_logger().warn(f"sequence dropped ({dropped}); {stats.dropped} dropped, "
                                    f"{stats.completed} complete so far")
-        if sequence is not None and self.publisher.get_subscription_count() > 0:  # no copy for nobody
+        if sequence is None:
+            return
+        if self.publisher.get_subscription_count() > 0:  # no copy for nobody
             k, h, w = sequence.images.shape
-            header = Header(stamp=msg.header.stamp, frame_id=msg.header.frame_id)
+            header = Header(frame_id=msg.header.frame_id)
             header.stamp.sec, header.stamp.nanosec = divmod(sequence.stamps_ns[0], 1_000_000_000)
             self.publisher.publish(numpy_to_image(sequence.images.reshape(k * h, w), header))
+        if self.single_publisher.get_subscription_count() > 0:
+            i = (len(self.calibration.patterns.frequencies) - 1) * self.calibration.patterns.steps
+            header = Header(frame_id=msg.header.frame_id)
+            header.stamp.sec, header.stamp.nanosec = divmod(sequence.stamps_ns[i], 1_000_000_000)
+            self.single_publisher.publish(numpy_to_image(sequence.images[i], header))
 
 
     def destroy_node(self):

@@ -83,13 +83,14 @@ def spin(nodes: list[Node]) -> None:
         rclpy.try_shutdown()
 
 
-def run(*node_classes, args=None) -> None:
-    """main() of an executable: start the nodes, spin, shut down cleanly; a bad configuration is one
-    error line and exit status 2, not a traceback."""
+def run(*node_factories, args=None) -> None:
+    """main() of an executable: make the nodes (classes or functions returning a node), spin, shut
+    down cleanly; a bad configuration is one error line and exit status 2, not a traceback."""
     rclpy.init(args=args)
     nodes = []
     try:
-        nodes = [cls() for cls in node_classes]
+        for make in node_factories:
+            nodes.append(make())
     except (ValueError, OSError) as e:
         print(f"[FATAL] {e}", file=sys.stderr)
         for n in nodes:

@@ -33,10 +33,12 @@ class Robot(Node):
 
     def __init__(self, depth_images: bool = True):
         super().__init__("demo_robot")
-        self.frames, self.clouds, self.depths, self.truth = {}, [], {}, None
+        self.frames, self.clouds, self.cnn_clouds, self.depths, self.truth = {}, [], [], {}, None
         clock = time.time_ns
         self.create_subscription(Image, Topics.CAMERA_IMAGE, lambda m: self.frames.__setitem__(stamp_ns(m), clock()), Qos.FRAMES)
         self.create_subscription(PointCloud2, Topics.POINTS, lambda m: self.clouds.append((m, clock())), Qos.LARGE)
+        self.create_subscription(PointCloud2, "cnn/" + Topics.POINTS, lambda m: self.cnn_clouds.append((m, clock())),
+                                 Qos.LARGE)
         if depth_images:
             self.create_subscription(Image, Topics.DEPTH, lambda m: self.depths.__setitem__(stamp_ns(m), m), Qos.LARGE)
         self.create_subscription(Image, Topics.TRUTH, lambda m: setattr(self, "truth", image_to_numpy(m).copy()), Qos.LATCHED)
@@ -88,13 +90,17 @@ def per_cloud(robot: Robot, frames_per_sequence: int = 16) -> list[dict]:
         if k >= len(frame_stamps) or frame_stamps[k] - first > 1.5 * (frames_per_sequence - 1) * period:
             continue  # not all of its frames were seen here
         last = frame_stamps[k]
-        z = cloud_to_xyz(cloud)[..., 2]
-        ok = np.isfinite(z) & np.isfinite(robot.truth)
+        rmse, cover = cloud_rmse_mm(cloud, robot.truth)
         rows.append({"camera": (robot.frames[last] - last) / 1e6, "capture+depth": (arrived - robot.frames[last]) / 1e6,
                      "end-to-end": (arrived - last) / 1e6, "sequence": (last - first) / 1e6,
-                     "rmse_mm": float(np.sqrt(np.mean((z[ok] - robot.truth[ok]) ** 2)) * 1000),
-                     "cover": ok.sum() / np.isfinite(robot.truth).sum()})
+                     "rmse_mm": rmse, "cover": cover})
     return rows
+
+
+def cloud_rmse_mm(cloud, truth) -> tuple[float, float]:
+    z = cloud_to_xyz(cloud)[..., 2]
+    ok = np.isfinite(z) & np.isfinite(truth)
+    return float(np.sqrt(np.mean((z[ok] - truth[ok]) ** 2)) * 1000), ok.sum() / np.isfinite(truth).sum()
 
 
 def report(robot: Robot, out: Path) -> None:
@@ -113,6 +119,12 @@ def report(robot: Robot, out: Path) -> None:
     print("camera: a sequence's last frame arrives, after its pattern was shown; capture+depth: then the cloud "
           "arrives;\nend-to-end: last pattern shown to cloud here; sequence: first to last pattern shown. "
           "RMSE and cover (of lit pixels) against the simulator's exact depth.")
+    if robot.cnn_clouds:
+        print("\nside by side, the single-shot path (cnn_depth on each sequence's first 100-fringe image):")
+        print(f"{'cloud':>5} {'image->cloud ms':>15} {'RMSE mm':>8}")
+        for i, (cloud, arrived) in enumerate(robot.cnn_clouds):
+            io.write_ply(out / f"cnn_cloud_{i:02d}.ply", cloud_to_xyz(cloud))
+            print(f"{i:5d} {(arrived - stamp_ns(cloud)) / 1e6:15.1f} {cloud_rmse_mm(cloud, robot.truth)[0]:8.3f}")
     print(f"wrote {len(robot.clouds)} .ply clouds (metres) and depth pictures to {out}")
 
 

@@ -1,14 +1,22 @@
-"""sensor: the whole simulated sensor in one process (projector, camera, capture, multi-shot depth),
-each node as it runs alone, on one executor."""
+"""sensor: the whole simulated sensor in one process, each node as it runs alone, on one executor:
+pattern_projector -> fringe_camera_sim -> capture_sequence -> fpp_depth (multi-shot: depth/image,
+points) and, side by side, cnn_depth in the cnn namespace (single-shot on each sequence's
+fringe_single image: cnn/depth/image, cnn/points)."""
 from .capture_sequence import CaptureSequence
+from .cnn_depth import CnnDepth
 from .common import run
 from .fpp_depth import FppDepth
 from .fringe_camera_sim import FringeCameraSim
 from .pattern_projector import PatternProjector
 
 
+def single_shot() -> CnnDepth:
+    # the composed demo lives at the root namespace; run the nodes alone to place them elsewhere
+    return CnnDepth(namespace="cnn", cli_args=["--ros-args", "-r", "camera/image_raw:=/fringe_single"])
+
+
 def main(args=None):
-    run(PatternProjector, FringeCameraSim, CaptureSequence, FppDepth, args=args)
+    run(PatternProjector, FringeCameraSim, CaptureSequence, FppDepth, single_shot, args=args)
 
 
 if __name__ == "__main__":

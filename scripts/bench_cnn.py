@@ -1,0 +1,99 @@
+"""cnn_depth at 640x480: frames per second and latency of the node, beside a bare onnxruntime session
+on the same model in the same run (the node's overhead is the difference).
+
+    source scripts/env.bash && python scripts/bench_cnn.py [--model PATH] [--seconds 20]
+
+Rows: the bare session on the network's input (1 x 1 x 256 x 320 for the default, half resolution);
+DepthModel (what the node calls: scale, shrink, pad, run, grow back); the node in its own process, fed
+by this script as fast as it takes frames (it keeps only the newest), timed from each frame's stamp to
+its depth image arriving here.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import time
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+from std_msgs.msg import Header
+
+from fpp_msgs_py import Qos, Topics, numpy_to_image
+from fpp_nodes.core.model import DepthModel, default_model_path
+from fpp_nodes.core.simulation import Rig, make_scene, render
+
+
+def timed(fn, n):
+    fn()
+    times = []
+    for _ in range(n):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return np.array(times) * 1000
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", default=default_model_path())
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--domain", type=int, default=92)
+    args = parser.parse_args()
+    rig = Rig()
+    patterns = rig.pattern_set()
+    image = render(rig, make_scene(rig, "sculpture", 5), patterns, np.random.default_rng(5)).images[12]
+    model = DepthModel(args.model, threads=args.threads)
+    h, w = 480 // model.downsample, 640 // model.downsample
+    x = np.zeros((1, 1, h + (-h) % 32, w + (-w) % 32), np.float32)
+    bare = timed(lambda: model.session.run(["depth_mm"], {"image": x}), 50)
+    full = timed(lambda: model(image), 50)
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(args.domain))
+    node_proc = subprocess.Popen(["ros2", "run", "fpp_nodes", "cnn_depth", "--ros-args", "-p", f"model:={args.model}",
+                                  "-p", f"threads:={args.threads}"], env=env, start_new_session=True)
+    rclpy.init(domain_id=args.domain)
+    robot = Node("bench_cnn")
+    arrivals = []
+    robot.create_subscription(Image, Topics.DEPTH, lambda m: arrivals.append(
+        (time.time_ns() - (m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec)) / 1e6), Qos.LARGE)
+    pub = robot.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
+    try:
+        while pub.get_subscription_count() == 0 or robot.count_subscribers(Topics.CAMERA_IMAGE) == 0:
+            rclpy.spin_once(robot, timeout_sec=0.1)
+        time.sleep(1.0)
+        sent, start = 0, time.monotonic()
+        while time.monotonic() - start < args.seconds:
+            header = Header(frame_id="camera_optical_frame", stamp=robot.get_clock().now().to_msg())
+            pub.publish(numpy_to_image(image, header))
+            sent += 1
+            rclpy.spin_once(robot, timeout_sec=0.005)
+        elapsed = time.monotonic() - start
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            rclpy.spin_once(robot, timeout_sec=0.05)
+    finally:
+        os.killpg(node_proc.pid, signal.SIGINT)
+        node_proc.wait(timeout=15)
+        robot.destroy_node()
+        rclpy.try_shutdown()
+    lat = np.array(arrivals)
+    print(f"\nmodel {args.model} ({model.card.get('architecture')}, width {model.card.get('width')}, "
+          f"{model.card.get('parameters')} parameters), onnxruntime {args.threads} threads, 640x480 mono8 frames\n")
+    print(f"{'':44} {'ms p50':>7} {'ms p95':>7} {'frames/s':>9}")
+    print(f"{'bare onnxruntime session (' + 'x'.join(map(str, x.shape[2:][::-1])) + ')':44} "
+          f"{np.median(bare):7.1f} {np.percentile(bare, 95):7.1f} {1000 / np.median(bare):9.1f}")
+    print(f"{'DepthModel (scale, shrink, pad, run, grow)':44} {np.median(full):7.1f} {np.percentile(full, 95):7.1f} "
+          f"{1000 / np.median(full):9.1f}")
+    print(f"{'cnn_depth node, stamp to depth here':44} {np.median(lat):7.1f} {np.percentile(lat, 95):7.1f} "
+          f"{len(lat) / elapsed:9.1f}")
+    print(f"\nframes sent {sent} ({sent / elapsed:.0f}/s), depth images back {len(lat)}; the node keeps the newest "
+          f"frame, so the rest were dropped, not queued. Node latency / bare session: {np.median(lat) / np.median(bare):.1f}x")
+
+
+if __name__ == "__main__":
+    main()
