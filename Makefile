@@ -54,7 +54,7 @@ bench-cnn: setup
 
 # The shipped default single-shot model (fpp_nodes/fpp_nodes/data/models/unet.onnx + card): the data
 # set the paper's size, then a small UNet at half resolution, as far as the CPU gets in DEFAULT_EPOCHS.
-DEFAULT_EPOCHS ?= 40
+DEFAULT_EPOCHS ?= 80
 default-model: setup
 	$(PY) -m training.dataset --out data/fpp --set single
 	$(PY) -m training.train --data data/fpp/single --arch unet --width 8 --epochs $(DEFAULT_EPOCHS) --out runs/default-unet
