@@ -22,7 +22,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 
-from fpp_msgs_py import Qos, Topics, numpy_to_image
+from fpp_msgs_py import Qos, Topics, numpy_to_image, stamp_ns
 from fpp_nodes.core.model import DepthModel, default_model_path
 from fpp_nodes.core.simulation import Rig, make_scene, render
 
@@ -60,7 +60,7 @@ def main():
     robot = Node("bench_cnn")
     arrivals = []
     robot.create_subscription(Image, Topics.DEPTH, lambda m: arrivals.append(
-        (time.time_ns() - (m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec)) / 1e6), Qos.LARGE)
+        (time.time_ns() - stamp_ns(m.header.stamp)) / 1e6), Qos.LARGE)
     pub = robot.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
     try:
         while pub.get_subscription_count() == 0 or robot.count_subscribers(Topics.CAMERA_IMAGE) == 0:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from sensor_msgs.msg import Image, PointCloud2
 
-from fpp_msgs_py import Qos, Topics, cloud_to_xyz
+from fpp_msgs_py import Qos, Topics, cloud_to_xyz, stamp_ns
 from fpp_nodes.bag import BagError, BagWriter, read_bag
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.simulation import Rig
@@ -13,7 +13,7 @@ from rosgraph import Processes, Robot, fresh_domain_id
 
 
 def stamp(msg):
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    return stamp_ns(msg.header.stamp)
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])

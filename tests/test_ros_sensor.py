@@ -6,7 +6,7 @@ import pytest
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Header
 
-from fpp_msgs_py import Frames, Qos, Topics, cloud_to_xyz, image_to_numpy, numpy_to_image
+from fpp_msgs_py import Frames, Qos, Topics, cloud_to_xyz, header_at, image_to_numpy, numpy_to_image, stamp_ns
 from fpp_nodes.core.patterns import line_image, pattern_lines
 from fpp_nodes.core.simulation import Rig, make_scene, render
 
@@ -80,20 +80,19 @@ def test_broken_sequences_over_dds_are_dropped_never_mixed(ros_graph):
              list(range(8)) + [7] + list(range(8, k)),        # duplicated frame
              [0, 1, 2, 4, 3] + list(range(5, k)),             # out of order
              list(range(k))]                                  # complete
-    stamp_ns = 1_000_000_000
+    t = 1_000_000_000
     first_stamps = []
     for play in plays:
-        first_stamps.append(stamp_ns)
+        first_stamps.append(t)
         for i in play:
-            header = Header(frame_id=Frames.CAMERA)
-            header.stamp.sec, header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+            header = header_at(t, Frames.CAMERA)
             pattern_pub.publish(numpy_to_image(lines[i], header))
             camera_pub.publish(numpy_to_image(capture.images[i], header))
-            stamp_ns += 33_000_000
+            t += 33_000_000
             robot.spin_until(lambda: False, 0.01)
     robot.spin_until(lambda: len(clouds) >= 2, 20)
     robot.spin_until(lambda: False, 2.0)  # anything more would arrive now
-    stamps = [c.header.stamp.sec * 1_000_000_000 + c.header.stamp.nanosec for c in clouds]
+    stamps = [stamp_ns(c.header.stamp) for c in clouds]
     assert stamps == [first_stamps[0], first_stamps[4]], procs.logs()
     truth_m = np.where(capture.valid, capture.depth_mm / 1000, np.nan)
     for cloud in clouds:

@@ -153,8 +153,7 @@ def test_cnn_depth_node(trained, tmp_path, ros_graph):
 def test_a_data_set_from_a_recorded_bag(tmp_path):
     """What a user with real hardware does: record full sequences, label them with the multi-shot path."""
     from rclpy.serialization import serialize_message
-    from std_msgs.msg import Header
-    from fpp_msgs_py import numpy_to_image
+    from fpp_msgs_py import header_at, numpy_to_image
     from fpp_nodes.bag import BagWriter
     from fpp_nodes.core.calibration import Calibration, default_calibration_path
     from fpp_nodes.core.patterns import line_image, pattern_lines
@@ -167,8 +166,7 @@ def test_a_data_set_from_a_recorded_bag(tmp_path):
     writer.write_calibration(Calibration.load(default_calibration_path()).to_yaml(), 0)
     t = 1_000_000_000
     for k in [5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15] + list(range(16)):  # joins mid-sequence, then one whole
-        header = Header(frame_id="camera_optical_frame")
-        header.stamp.sec, header.stamp.nanosec = divmod(t, 1_000_000_000)
+        header = header_at(t, "camera_optical_frame")
         writer.write("/projector/pattern", "sensor_msgs/msg/Image", t,
                      serialize_message(numpy_to_image(line_image(patterns, pattern_lines(patterns)[k]), header)))
         writer.write("/camera/image_raw", "sensor_msgs/msg/Image", t + 1000, serialize_message(numpy_to_image(capture.images[k], header)))

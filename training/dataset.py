@@ -116,7 +116,7 @@ def write_bag_set(bag, out, split: str = "train", calibration_path: str | None =
     record, label with multi-shot, train). Frames are assembled into sequences as capture_sequence
     does; each complete sequence becomes a sample whose label is its multi-shot reconstruction. There
     is no exact depth for a real scene: truth is all 0 (invalid). Returns the number of samples."""
-    from fpp_msgs_py import image_to_numpy  # the deserialized messages have sensor_msgs' fields
+    from fpp_msgs_py import image_to_numpy, stamp_ns  # rosbags' messages have sensor_msgs' fields
 
     from fpp_nodes.bag import TYPESTORE, read_bag
     from fpp_nodes.core.sequence import SequenceAssembler, index_by_line
@@ -133,7 +133,7 @@ def write_bag_set(bag, out, split: str = "train", calibration_path: str | None =
         if msgtype != "sensor_msgs/msg/Image":
             continue
         msg = TYPESTORE.deserialize_cdr(data, msgtype)
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp = stamp_ns(msg.header.stamp)
         image = image_to_numpy(msg)
         if topic.endswith("projector/pattern"):
             if image.tobytes() in lines:

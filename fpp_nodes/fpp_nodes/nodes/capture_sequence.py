@@ -14,16 +14,11 @@ from collections import deque
 
 from rclpy.node import Node
 from sensor_msgs.msg import Image
-from std_msgs.msg import Header
 
-from fpp_msgs_py import ImageError, Qos, Topics, image_to_numpy, numpy_to_image
+from fpp_msgs_py import ImageError, Qos, Topics, header_at, image_to_numpy, numpy_to_image, stamp_ns
 
 from ..core.sequence import SequenceAssembler, index_by_line
 from .common import declare, follow_calibration, load_calibration, on_set, positive, run
-
-
-def _ns(stamp) -> int:
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 class CaptureSequence(Node):
@@ -60,11 +55,11 @@ class CaptureSequence(Node):
             self.get_logger().error("the projector shows a pattern that is not in the calibration's pattern set",
                                     throttle_duration_sec=5.0)
             return
-        self.shown.append((_ns(msg.header.stamp), index))
+        self.shown.append((stamp_ns(msg.header.stamp), index))
         self._drain()
 
     def _match(self, frame: Image) -> int | None:
-        t = _ns(frame.header.stamp)
+        t = stamp_ns(frame.header.stamp)
         best = min(self.shown, key=lambda e: abs(e[0] - t), default=None)
         return best[1] if best is not None and abs(best[0] - t) <= self.max_offset_ns else None
 
@@ -81,7 +76,7 @@ class CaptureSequence(Node):
             head = self.waiting[0]
             index = self._match(head)
             if index is None:
-                if not self.shown or self.shown[-1][0] <= _ns(head.header.stamp) + self.max_offset_ns:
+                if not self.shown or self.shown[-1][0] <= stamp_ns(head.header.stamp) + self.max_offset_ns:
                     return
                 self._unmatched(self.waiting.popleft())
                 continue
@@ -98,7 +93,7 @@ class CaptureSequence(Node):
         except ImageError as e:
             self.get_logger().error(f"camera frame ignored: {e}", throttle_duration_sec=5.0)
             return
-        sequence, dropped = self.assembler.add(index, _ns(msg.header.stamp), image)
+        sequence, dropped = self.assembler.add(index, stamp_ns(msg.header.stamp), image)
         stats = self.assembler.stats
         if dropped:
             self.get_logger().warn(f"sequence dropped ({dropped}); {stats.dropped} dropped, "
@@ -107,14 +102,12 @@ class CaptureSequence(Node):
             return
         if self.publisher.get_subscription_count() > 0:  # no copy for nobody
             k, h, w = sequence.images.shape
-            header = Header(frame_id=msg.header.frame_id)
-            header.stamp.sec, header.stamp.nanosec = divmod(sequence.stamps_ns[0], 1_000_000_000)
-            self.publisher.publish(numpy_to_image(sequence.images.reshape(k * h, w), header))
+            self.publisher.publish(numpy_to_image(sequence.images.reshape(k * h, w),
+                                                  header_at(sequence.stamps_ns[0], msg.header.frame_id)))
         if self.single_publisher.get_subscription_count() > 0:
             i = (len(self.calibration.patterns.frequencies) - 1) * self.calibration.patterns.steps
-            header = Header(frame_id=msg.header.frame_id)
-            header.stamp.sec, header.stamp.nanosec = divmod(sequence.stamps_ns[i], 1_000_000_000)
-            self.single_publisher.publish(numpy_to_image(sequence.images[i], header))
+            self.single_publisher.publish(numpy_to_image(sequence.images[i],
+                                                         header_at(sequence.stamps_ns[i], msg.header.frame_id)))
 
 
     def destroy_node(self):

@@ -20,13 +20,9 @@ import rclpy
 from rclpy.node import Node
 from sensor_msgs.msg import Image, PointCloud2
 
-from fpp_msgs_py import Qos, Topics, cloud_to_xyz, image_to_numpy
+from fpp_msgs_py import Qos, Topics, cloud_to_xyz, image_to_numpy, stamp_ns
 
 from ..core import io
-
-def stamp_ns(msg) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-
 
 class Robot(Node):
     """Subscribes to everything a robot and its operator look at, noting when each message arrives."""
@@ -35,12 +31,12 @@ class Robot(Node):
         super().__init__("demo_robot")
         self.frames, self.clouds, self.cnn_clouds, self.depths, self.truth = {}, [], [], {}, None
         clock = time.time_ns
-        self.create_subscription(Image, Topics.CAMERA_IMAGE, lambda m: self.frames.__setitem__(stamp_ns(m), clock()), Qos.FRAMES)
+        self.create_subscription(Image, Topics.CAMERA_IMAGE, lambda m: self.frames.__setitem__(stamp_ns(m.header.stamp), clock()), Qos.FRAMES)
         self.create_subscription(PointCloud2, Topics.POINTS, lambda m: self.clouds.append((m, clock())), Qos.LARGE)
         self.create_subscription(PointCloud2, "cnn/" + Topics.POINTS, lambda m: self.cnn_clouds.append((m, clock())),
                                  Qos.LARGE)
         if depth_images:
-            self.create_subscription(Image, Topics.DEPTH, lambda m: self.depths.__setitem__(stamp_ns(m), m), Qos.LARGE)
+            self.create_subscription(Image, Topics.DEPTH, lambda m: self.depths.__setitem__(stamp_ns(m.header.stamp), m), Qos.LARGE)
         self.create_subscription(Image, Topics.TRUTH, lambda m: setattr(self, "truth", image_to_numpy(m).copy()), Qos.LATCHED)
 
 
@@ -85,7 +81,7 @@ def per_cloud(robot: Robot, frames_per_sequence: int = 16) -> list[dict]:
     period = np.median(np.diff(frame_stamps)) if len(frame_stamps) > 1 else 0
     rows = []
     for cloud, arrived in robot.clouds:
-        first = stamp_ns(cloud)
+        first = stamp_ns(cloud.header.stamp)
         k = np.searchsorted(frame_stamps, first) + frames_per_sequence - 1
         if k >= len(frame_stamps) or frame_stamps[k] - first > 1.5 * (frames_per_sequence - 1) * period:
             continue  # not all of its frames were seen here
@@ -107,7 +103,7 @@ def report(robot: Robot, out: Path) -> None:
     rows = per_cloud(robot)
     for i, (cloud, _) in enumerate(robot.clouds):
         io.write_ply(out / f"cloud_{i:02d}.ply", cloud_to_xyz(cloud))
-        depth = robot.depths.get(stamp_ns(cloud))
+        depth = robot.depths.get(stamp_ns(cloud.header.stamp))
         if depth is not None:
             cv2.imwrite(str(out / f"depth_{i:02d}.png"), io.depth_picture(image_to_numpy(depth) * 1000.0))
     print(f"\n{len(rows)} clouds (640x480, organized) from the simulated sensor; milliseconds, from the stamps "
@@ -124,7 +120,7 @@ def report(robot: Robot, out: Path) -> None:
         print(f"{'cloud':>5} {'image->cloud ms':>15} {'RMSE mm':>8}")
         for i, (cloud, arrived) in enumerate(robot.cnn_clouds):
             io.write_ply(out / f"cnn_cloud_{i:02d}.ply", cloud_to_xyz(cloud))
-            print(f"{i:5d} {(arrived - stamp_ns(cloud)) / 1e6:15.1f} {cloud_rmse_mm(cloud, robot.truth)[0]:8.3f}")
+            print(f"{i:5d} {(arrived - stamp_ns(cloud.header.stamp)) / 1e6:15.1f} {cloud_rmse_mm(cloud, robot.truth)[0]:8.3f}")
     print(f"wrote {len(robot.clouds)} .ply clouds (metres) and depth pictures to {out}")
 
 
