@@ -14,6 +14,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
@@ -84,3 +85,20 @@ class Robot:
         self.executor.shutdown()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
+
+
+class Diagnostics:
+    """The newest DiagnosticStatus of each node, and every message each has said."""
+
+    def __init__(self, robot):
+        self.latest, self.said = {}, {}
+        robot.node.create_subscription(DiagnosticArray, "/diagnostics", self._on, 50)
+
+    def _on(self, msg):
+        for status in msg.status:
+            self.latest[status.name] = status
+            self.said.setdefault(status.name, []).append(status.message)
+
+    def value(self, node: str, key: str, default="0") -> str:
+        status = self.latest.get(node)
+        return next((kv.value for kv in status.values if kv.key == key), default) if status else default

@@ -50,6 +50,31 @@ def test_composed_sensor_with_a_late_subscriber(ros_graph):
     assert info[-1].k[0] == pytest.approx(Rig().focal_px)
 
 
+def test_health_on_diagnostics(ros_graph):
+    """Every node of the composed sensor reports on /diagnostics: rates, drops, latency, what it runs with."""
+    import yaml
+    from rosgraph import Diagnostics
+    from fpp_nodes.core.model import default_model_path
+    procs, robot = ros_graph
+    procs.run("sensor")
+    points, cnn_points = collect(robot, Topics.POINTS, PointCloud2), collect(robot, "cnn/" + Topics.POINTS, PointCloud2)
+    diagnostics = Diagnostics(robot)
+    assert robot.spin_until(lambda: len(points) >= 3 and cnn_points, 60), procs.logs()
+    robot.spin_until(lambda: False, 1.5)  # a report covering the running stream
+    names = {"/pattern_projector", "/fringe_camera_sim", "/capture_sequence", "/fpp_depth", "/cnn/cnn_depth"}
+    assert names <= set(diagnostics.latest), diagnostics.latest.keys()
+    assert all(diagnostics.latest[n].level == b"\x00" and diagnostics.latest[n].hardware_id == "fpp_sensor"
+               for n in names), {n: diagnostics.latest[n].message for n in names}
+    assert float(diagnostics.value("/pattern_projector", "patterns shown rate (Hz)")) > 10
+    assert float(diagnostics.value("/capture_sequence", "sequences complete rate (Hz)")) > 0.5
+    assert diagnostics.value("/capture_sequence", "sequences dropped", "none") == "none"  # never counted: none
+    assert float(diagnostics.value("/fpp_depth", "latency p50 (ms)")) > 0
+    assert "sha256" in diagnostics.value("/fpp_depth", "calibration", "")
+    card = yaml.safe_load(open(default_model_path()[:-5] + ".yaml"))
+    assert diagnostics.value("/cnn/cnn_depth", "model sha256") == card["sha256"][:12]
+    assert float(diagnostics.value("/cnn/cnn_depth", "latency p95 (ms)")) > 0
+
+
 def test_each_node_in_its_own_process(ros_graph):
     procs, robot = ros_graph
     for exe in ("pattern_projector", "fringe_camera_sim", "capture_sequence", "fpp_depth"):
@@ -123,11 +148,12 @@ def test_no_work_for_outputs_nobody_subscribes_to(ros_graph):
     publisher = robot.node.create_publisher(Image, Topics.SEQUENCE, Qos.LARGE)
     assert robot.spin_until(lambda: publisher.get_subscription_count() > 0, 10)
     publisher.publish(sequence)
-    assert robot.spin_until(lambda: depth_node.skipped == 1, 10) and depth_node.processed == 0
+    counts = depth_node.health.totals
+    assert robot.spin_until(lambda: counts["sequences skipped (no subscribers)"] == 1, 10) and counts["depth out"] == 0
     clouds = collect(robot, Topics.POINTS, PointCloud2)
     assert robot.spin_until(lambda: depth_node.points_pub.get_subscription_count() > 0, 10)
     publisher.publish(sequence)
-    assert robot.spin_until(lambda: len(clouds) == 1, 10) and depth_node.processed == 1
+    assert robot.spin_until(lambda: len(clouds) == 1, 10) and counts["depth out"] == 1
     robot.executor.remove_node(depth_node)
     depth_node.destroy_node()
 

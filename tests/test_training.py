@@ -95,8 +95,10 @@ def test_export_parity_card_and_onnxruntime(trained, tmp_path):
     card = export(str(out / "last.pt"), str(tmp_path / "m.onnx"))
     assert card["parity"]["max_abs_diff_mm"] < 1e-3 and card["parity"]["size"] != [224, 320]
     model = DepthModel(tmp_path / "m.onnx", threads=1)
-    depth = model(np.zeros((480, 640), np.uint8))
+    fringes = np.broadcast_to(128 + 100 * np.sin(np.arange(640) * 2 * np.pi / 9), (480, 640)).astype(np.uint8)
+    depth = model(fringes)
     assert depth.shape == (480, 640) and depth.dtype == np.float32 and np.isfinite(depth).all()
+    assert np.isnan(model(np.zeros((480, 640), np.uint8))).all()  # no fringes: no depth
     with pytest.raises(ModelError, match="640x480"):
         model(np.zeros((240, 320), np.uint8))
     with pytest.raises(ModelError, match="mono8 or mono16"):

@@ -12,48 +12,52 @@ from __future__ import annotations
 import sys
 from collections import deque
 
+import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 
 from fpp_msgs_py import ImageError, Qos, Topics, header_at, image_to_numpy, numpy_to_image, stamp_ns
 
 from ..core.sequence import SequenceAssembler, index_by_line
-from .common import declare, follow_calibration, load_calibration, on_set, positive, run
+from .common import declare, describe, follow_calibration, load_calibration, on_set, positive, run
+from .health import Health
 
 
 class CaptureSequence(Node):
     def __init__(self, **kwargs):
         super().__init__("capture_sequence", **kwargs)
+        self.health = Health(self)
         self._use(load_calibration(self))
-        follow_calibration(self, lambda: self.calibration, self._use)
+        follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
         self.max_offset_ns = int(declare(self, "max_time_offset", 0.005,
                                          "largest |camera stamp - pattern stamp| of a match, seconds") * 1e9)
         on_set(self, {"max_time_offset": positive})
         self.add_post_set_parameters_callback(
             lambda ps: [setattr(self, "max_offset_ns", int(p.value * 1e9)) for p in ps if p.name == "max_time_offset"])
-        self.waiting: deque[Image] = deque(maxlen=8)  # frames that arrived before their pattern event
         self.unmatched = 0
         self.publisher = self.create_publisher(Image, Topics.SEQUENCE, Qos.LARGE)
         self.single_publisher = self.create_publisher(Image, Topics.SINGLE, Qos.LARGE)
         self.create_subscription(Image, Topics.PATTERN, self._on_pattern, Qos.FRAMES)
         self.create_subscription(Image, Topics.CAMERA_IMAGE, self._on_frame, Qos.FRAMES)
 
-    def _use(self, calibration):
+    def _use(self, calibration, source="parameter calibration"):
         patterns = calibration.patterns
         self.calibration = calibration
+        self.health.facts["calibration"] = describe(calibration, source)
         self.index_of_line = index_by_line(patterns)
         self.assembler = SequenceAssembler(patterns.count)
         self.shown: deque[tuple[int, int]] = deque(maxlen=4 * patterns.count)  # (stamp ns, pattern index)
+        self.waiting: deque[Image] = deque(maxlen=2 * patterns.count)  # frames that came before their pattern event
 
     def _on_pattern(self, msg: Image):
         try:
             index = self.index_of_line.get(image_to_numpy(msg).tobytes())
         except ImageError as e:
-            self.get_logger().error(f"pattern ignored: {e}", throttle_duration_sec=5.0)
+            self.health.report("patterns rejected", f"pattern ignored: {e}")
             return
         if index is None:
-            self.get_logger().error("the projector shows a pattern that is not in the calibration's pattern set",
-                                    throttle_duration_sec=5.0)
+            self.health.report("patterns rejected", "the projector shows a pattern that is not in the calibration's "
+                                                    "pattern set")
             return
         self.shown.append((stamp_ns(msg.header.stamp), index))
         self._drain()
@@ -64,6 +68,7 @@ class CaptureSequence(Node):
         return best[1] if best is not None and abs(best[0] - t) <= self.max_offset_ns else None
 
     def _on_frame(self, msg: Image):
+        self.health.count("frames in")
         if len(self.waiting) == self.waiting.maxlen:
             self._unmatched(self.waiting.popleft())
         self.waiting.append(msg)
@@ -84,22 +89,25 @@ class CaptureSequence(Node):
 
     def _unmatched(self, frame: Image):
         self.unmatched += 1
-        self.get_logger().warn(f"camera frame matches no projected pattern (within {self.max_offset_ns / 1e9:g} s); "
-                               f"{self.unmatched} so far", throttle_duration_sec=5.0)
+        self.health.report("frames matching no pattern", f"camera frame matches no projected pattern (within "
+                                                         f"{self.max_offset_ns / 1e9:g} s); {self.unmatched} so far")
 
     def _assemble(self, msg: Image, index: int):
         try:
             image = image_to_numpy(msg)
+            check_frame(image, self.calibration.camera)
         except ImageError as e:
-            self.get_logger().error(f"camera frame ignored: {e}", throttle_duration_sec=5.0)
+            # the sequence it belonged to is incomplete now and will be dropped, not mixed
+            self.health.report("frames rejected", f"camera frame rejected: {e}")
             return
         sequence, dropped = self.assembler.add(index, stamp_ns(msg.header.stamp), image)
         stats = self.assembler.stats
         if dropped:
-            self.get_logger().warn(f"sequence dropped ({dropped}); {stats.dropped} dropped, "
-                                   f"{stats.completed} complete so far")
+            self.health.report("sequences dropped", f"sequence dropped ({dropped}); {stats.dropped} dropped, "
+                                                    f"{stats.completed} complete so far")
         if sequence is None:
             return
+        self.health.count("sequences complete")
         if self.publisher.get_subscription_count() > 0:  # no copy for nobody
             k, h, w = sequence.images.shape
             self.publisher.publish(numpy_to_image(sequence.images.reshape(k * h, w),
@@ -109,7 +117,6 @@ class CaptureSequence(Node):
             self.single_publisher.publish(numpy_to_image(sequence.images[i],
                                                          header_at(sequence.stamps_ns[i], msg.header.frame_id)))
 
-
     def destroy_node(self):
         s = self.assembler.stats
         # printed, not logged: at shutdown rosout may already be gone
@@ -117,6 +124,15 @@ class CaptureSequence(Node):
               f"{' ' + str(s.reasons) if s.reasons else ''}, frames matching no pattern {self.unmatched}",
               file=sys.stderr, flush=True)
         return super().destroy_node()
+
+
+def check_frame(image: np.ndarray, camera) -> None:
+    """A camera frame the multi-shot path can use: the calibration's size, finite if float."""
+    if image.shape != (camera.height, camera.width):
+        raise ImageError(f"frame is {image.shape[1]}x{image.shape[0]}, the calibration's camera is "
+                         f"{camera.width}x{camera.height}")
+    if image.dtype.kind == "f" and not np.isfinite(image).all():
+        raise ImageError(f"{image.size - np.count_nonzero(np.isfinite(image))} pixels are NaN or Inf")
 
 
 def main(args=None):

@@ -3,9 +3,10 @@ network (ONNX, run with onnxruntime).
 
 Subscribes camera/image_raw (mono8/mono16: the first phase-shifted image of the highest frequency, as
 the network was trained), keeping only the newest frame (KEEP_LAST 1): under load older frames are
-dropped, never queued. Publishes depth/image (32FC1, metres), depth/camera_info and points (organized
-PointCloud2, metres), with the image's header. A frame of the wrong size or encoding is an error
-(throttled) and skipped; a missing, corrupt or mismatched model stops the node at start.
+dropped, never queued. Publishes depth/image (32FC1, metres, NaN where the image shows no usable
+fringes: shadows, dark or saturated areas), depth/camera_info and points (organized PointCloud2,
+metres), with the image's header, and its health on /diagnostics. A frame of the wrong size or
+encoding is rejected and counted; a missing, corrupt or mismatched model stops the node at start.
 Parameters: model (path; empty = the shipped default), providers (CPUExecutionProvider; CUDA where
 present), threads (onnxruntime intra-op threads), calibration (intrinsics for the cloud).
 """
@@ -22,7 +23,9 @@ from fpp_msgs_py import ImageError, Qos, Topics, camera_info, image_to_numpy, nu
 
 from ..core.calibration import back_project
 from ..core.model import DepthModel, ModelError, default_model_path
-from .common import declare, load_calibration, run
+from .common import declare, describe, load_calibration, run
+from .fpp_depth import FEW_FRINGES
+from .health import Health
 
 NEWEST_ONLY = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -35,7 +38,9 @@ class CnnDepth(Node):
         threads = declare(self, "threads", 2, "onnxruntime intra-op threads", True)
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
+        self.health = Health(self)
         self.calibration = load_calibration(self)
+        self.health.facts["calibration"] = describe(self.calibration, "parameter calibration")
         self.model = DepthModel(path or default_model_path(), providers, threads)
         cam = self.calibration.camera
         if (cam.width, cam.height) != self.model.size:
@@ -46,20 +51,25 @@ class CnnDepth(Node):
         self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
         self.points_pub = self.create_publisher(PointCloud2, Topics.POINTS, Qos.LARGE)
         self.create_subscription(Image, Topics.CAMERA_IMAGE, self._on_image, NEWEST_ONLY)
-        self.processed, self.latencies_s = 0, []
-        self.get_logger().info(f"model {path or default_model_path()} ({self.model.card.get('architecture')}), "
+        card = self.model.card
+        self.health.facts.update({"model": path or default_model_path(), "model sha256": card["sha256"][:12],
+                                  "architecture": str(card.get("architecture")),
+                                  "providers": ", ".join(self.model.providers)})
+        self.get_logger().info(f"model {path or default_model_path()} ({card.get('architecture')}), "
                                f"providers {self.model.providers}")
 
     def _on_image(self, msg: Image):
+        self.health.count("frames in")
         want_depth = self.depth_pub.get_subscription_count() > 0
         want_points = self.points_pub.get_subscription_count() > 0
         if not (want_depth or want_points):
+            self.health.count("frames skipped (no subscribers)")
             return
         start = time.perf_counter()
         try:
             depth_mm = self.model(image_to_numpy(msg))
         except (ImageError, ModelError) as e:
-            self.get_logger().error(f"image ignored: {e}", throttle_duration_sec=5.0)
+            self.health.report("frames rejected", f"image rejected: {e}")
             return
         if want_depth:
             self.depth_pub.publish(numpy_to_image(depth_mm * np.float32(0.001), msg.header))
@@ -68,11 +78,13 @@ class CnnDepth(Node):
                                                  msg.header))
         self.info.header = msg.header
         self.info_pub.publish(self.info)
-        self.processed += 1
-        self.latencies_s = (self.latencies_s + [time.perf_counter() - start])[-100:]
-        if self.processed % 100 == 0:
-            self.get_logger().info(f"{self.processed} frames, latency median "
-                                   f"{np.median(self.latencies_s) * 1000:.1f} ms")
+        self.health.count("depth out")
+        self.health.latency(time.perf_counter() - start)
+        shown = np.count_nonzero(np.isfinite(depth_mm)) / depth_mm.size
+        self.health.facts["pixels with fringes (last)"] = f"{shown:.1%}"
+        if shown < FEW_FRINGES:
+            self.health.report("frames without fringes", f"only {shown:.2%} of pixels show usable fringes "
+                                                         "(dark, saturated or out of focus?)")
 
 
 def main(args=None):

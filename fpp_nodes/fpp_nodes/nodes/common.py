@@ -1,6 +1,7 @@
 """What every node shares: declaring validated parameters, loading the calibration, the main loop."""
 from __future__ import annotations
 
+import hashlib
 import sys
 
 import rclpy
@@ -31,9 +32,15 @@ def load_calibration(node: Node) -> Calibration:
     path = declare(node, "calibration", "", "calibration YAML (empty: the simulated rig's, shipped with the package)",
                    read_only=True) or default_calibration_path()
     calibration = Calibration.load(path)  # CalibrationError names the problem
-    node.get_logger().info(f"calibration {path}: {calibration.camera.width}x{calibration.camera.height}, "
-                           f"{calibration.patterns.count} patterns")
+    node.get_logger().info(f"calibration {describe(calibration, path)}")
     return calibration
+
+
+def describe(calibration: Calibration, source: str) -> str:
+    """Which calibration, for logs and /diagnostics: where from, its size, a hash of its content."""
+    digest = hashlib.sha256(calibration.to_yaml().encode()).hexdigest()[:12]
+    return (f"{source} ({calibration.camera.width}x{calibration.camera.height}, {calibration.patterns.count} patterns, "
+            f"sha256 {digest})")
 
 
 def follow_calibration(node: Node, current, use) -> None:

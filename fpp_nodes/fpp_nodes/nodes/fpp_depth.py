@@ -17,12 +17,17 @@ from fpp_msgs_py import ImageError, Qos, Topics, camera_info, image_to_numpy, nu
 
 from ..core.phase import PhaseError
 from ..core.reconstruct import PspReconstructor, QualityLimits
-from .common import declare, follow_calibration, load_calibration, run
+from .common import declare, describe, follow_calibration, load_calibration, run
+from .health import Health
+
+# Below this share of trusted pixels a sequence shows (almost) no fringes: said on /diagnostics.
+FEW_FRINGES = 0.01
 
 
 class FppDepth(Node):
     def __init__(self, **kwargs):
         super().__init__("fpp_depth", **kwargs)
+        self.health = Health(self)
         calibration = load_calibration(self)
         self.limits = QualityLimits(
             min_modulation=declare(self, "min_modulation", QualityLimits.min_modulation,
@@ -30,18 +35,16 @@ class FppDepth(Node):
             max_depth_step_mm=declare(self, "max_depth_step_mm", QualityLimits.max_depth_step_mm,
                                       "largest depth step between neighbours kept (flying pixels), mm", True))
         self._use(calibration)
-        follow_calibration(self, lambda: self.calibration, self._use)
+        follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
         self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
         self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
         self.points_pub = self.create_publisher(PointCloud2, Topics.POINTS, Qos.LARGE)
         self.quality_pub = self.create_publisher(Image, Topics.QUALITY, Qos.LARGE)
         self.create_subscription(Image, Topics.SEQUENCE, self._on_sequence, Qos.LARGE)
-        self.processed = 0
-        self.skipped = 0
-        self.last_latency_s = float("nan")
 
-    def _use(self, calibration):
+    def _use(self, calibration, source="parameter calibration"):
         self.calibration = calibration
+        self.health.facts["calibration"] = describe(calibration, source)
         self.reconstruct = PspReconstructor(calibration, self.limits)
         cam = calibration.camera
         self.info = camera_info(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
@@ -51,9 +54,10 @@ class FppDepth(Node):
                 (("depth", self.depth_pub), ("points", self.points_pub), ("quality", self.quality_pub))}
 
     def _on_sequence(self, msg: Image):
+        self.health.count("sequences in")
         wanted = self._wanted()
         if not any(wanted.values()):
-            self.skipped += 1
+            self.health.count("sequences skipped (no subscribers)")
             return
         start = time.perf_counter()
         cam, k = self.calibration.camera, self.calibration.patterns.count
@@ -64,7 +68,7 @@ class FppDepth(Node):
                                  f"got {stack.shape[1]}x{stack.shape[0]}")
             rec = self.reconstruct(stack.reshape(k, cam.height, cam.width))
         except (ImageError, PhaseError) as e:
-            self.get_logger().error(f"sequence ignored: {e}", throttle_duration_sec=5.0)
+            self.health.report("sequences rejected", f"sequence rejected: {e}")
             return
         header = msg.header
         if wanted["depth"]:
@@ -75,8 +79,13 @@ class FppDepth(Node):
             self.quality_pub.publish(numpy_to_image(rec.quality, header))
         self.info.header = header
         self.info_pub.publish(self.info)
-        self.processed += 1
-        self.last_latency_s = time.perf_counter() - start
+        self.health.count("depth out")
+        self.health.latency(time.perf_counter() - start)
+        trusted = np.count_nonzero(rec.valid) / rec.valid.size
+        self.health.facts["trusted pixels (last)"] = f"{trusted:.1%}"
+        if trusted < FEW_FRINGES:  # published all the same: a robot should see nothing rather than old data
+            self.health.report("sequences without fringes", f"only {trusted:.2%} of pixels show usable fringes "
+                                                           "(dark, saturated or out of focus?)")
 
 
 def main(args=None):

@@ -15,10 +15,12 @@ from fpp_msgs_py import Frames, ImageError, Qos, Topics, camera_info, image_to_n
 
 from ..core.simulation import SCENE_KINDS, Rig, SceneRenderer, make_scene, scene_from_file
 from .common import declare, run
+from .health import Health
 
 class FringeCameraSim(Node):
     def __init__(self, **kwargs):
         super().__init__("fringe_camera_sim", **kwargs)
+        self.health = Health(self)
         defaults = Rig()
         self.rig = Rig(noise_sigma=declare(self, "noise_sigma", defaults.noise_sigma, "camera noise, counts", True),
                        blur_sigma_px=declare(self, "blur_sigma_px", defaults.blur_sigma_px, "defocus blur, pixels", True),
@@ -47,14 +49,13 @@ class FringeCameraSim(Node):
         try:
             line = image_to_numpy(msg)
         except ImageError as e:
-            self.get_logger().error(f"pattern ignored: {e}", throttle_duration_sec=5.0)
+            self.health.report("patterns rejected", f"pattern ignored: {e}")
             return
         vertical = line.shape[0] == 1
         length = self.rig.projector_width if vertical else self.rig.projector_height
         if line.size != length or min(line.shape) != 1:
-            self.get_logger().error(f"pattern ignored: a {line.shape[1]}x{line.shape[0]} line does not fit a "
-                                    f"{self.rig.projector_width}x{self.rig.projector_height} projector",
-                                    throttle_duration_sec=5.0)
+            self.health.report("patterns rejected", f"pattern ignored: a {line.shape[1]}x{line.shape[0]} line does "
+                                                    f"not fit a {self.rig.projector_width}x{self.rig.projector_height} projector")
             return
         max_value = 255 if line.dtype == np.uint8 else 65535
         image = self.renderer.image(line.reshape(-1), max_value, vertical, self.rng)
@@ -62,6 +63,7 @@ class FringeCameraSim(Node):
         self.image_pub.publish(numpy_to_image(image, header))
         self.info.header = header
         self.info_pub.publish(self.info)
+        self.health.count("frames out")
 
 
 def main(args=None):

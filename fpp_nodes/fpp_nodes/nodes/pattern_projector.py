@@ -16,11 +16,13 @@ from fpp_msgs_py import Frames, Qos, Topics, numpy_to_image
 
 from ..core.patterns import PatternSet, line_image, pattern_lines
 from .common import declare, on_set, positive, run
+from .health import Health
 
 
 class PatternProjector(Node):
     def __init__(self, **kwargs):
         super().__init__("pattern_projector", **kwargs)
+        self.health = Health(self)
         self.patterns = PatternSet(
             frequencies=tuple(declare(self, "frequencies", [1, 4, 20, 100], "fringes across the pattern, increasing from 1", True)),
             steps=declare(self, "steps", 4, "phase shifts per frequency (>= 3)", True),
@@ -66,6 +68,7 @@ class PatternProjector(Node):
             self.queued -= 1
         stamp: Time = self.get_clock().now().to_msg()
         self.publisher.publish(numpy_to_image(self.lines[self.index], Header(stamp=stamp, frame_id=Frames.PROJECTOR)))
+        self.health.count("patterns shown")
         self.index = (self.index + 1) % len(self.lines)
 
 

@@ -1,0 +1,73 @@
+"""Node health on /diagnostics (diagnostic_msgs/DiagnosticArray), the way ROS drivers report it.
+
+Once a second each node publishes one DiagnosticStatus named after the node: totals and rates of what
+came in and went out, what was dropped or rejected and why, latency percentiles, and what it runs with
+(calibration, model). Level OK; WARN when something was dropped or rejected since the last report (the
+message says what: the newest three kinds of problem); counters are totals since start, rates are over
+the last report.
+"""
+from __future__ import annotations
+
+import re
+import time
+from collections import Counter, deque
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+
+TOPIC = "/diagnostics"  # absolute: the aggregator and rqt_robot_monitor listen there
+HARDWARE_ID = "fpp_sensor"
+
+
+class Health:
+    def __init__(self, node: Node, period_s: float = 1.0):
+        self.node = node
+        self.totals: Counter = Counter()
+        self.window: Counter = Counter()
+        self.latencies_s: deque = deque(maxlen=200)
+        self.facts: dict[str, str] = {}  # what the node runs with: calibration, model
+        self.problems: dict[str, str] = {}  # since the previous report: wording (numbers aside) -> latest message
+        self.logged: dict[str, float] = {}  # a problem's wording (numbers aside) -> when it was last logged
+        self.publisher = node.create_publisher(DiagnosticArray, TOPIC, 10)
+        self.since = time.monotonic()
+        node.create_timer(period_s, self.publish)
+
+    def count(self, key: str, n: int = 1) -> None:
+        self.totals[key] += n
+        self.window[key] += n
+
+    def latency(self, seconds: float) -> None:
+        self.latencies_s.append(seconds)
+
+    def report(self, key: str, message: str) -> None:
+        """Count a dropped or rejected input under key, say why on /diagnostics and in the log."""
+        self.count(key)
+        wording, now = re.sub(r"[\d.]+", "#", message), time.monotonic()
+        self.problems.pop(wording, None)
+        self.problems[wording] = message  # newest last
+        if now - self.logged.get(wording, -1e9) >= 5.0:  # each kind of problem at most every 5 s
+            self.logged[wording] = now
+            self.node.get_logger().warn(message)
+
+    def status(self) -> DiagnosticStatus:
+        now = time.monotonic()
+        elapsed = max(now - self.since, 1e-9)
+        values = {key: str(n) for key, n in sorted(self.totals.items())}
+        values.update({f"{key} rate (Hz)": f"{self.window[key] / elapsed:.2f}" for key in sorted(self.totals)})
+        if self.latencies_s:
+            p50, p95 = np.percentile(self.latencies_s, [50, 95]) * 1000
+            values.update({"latency p50 (ms)": f"{p50:.1f}", "latency p95 (ms)": f"{p95:.1f}"})
+        values.update(self.facts)
+        problems = list(self.problems.values())[-3:]
+        level, message = (DiagnosticStatus.WARN, "; ".join(problems)) if problems else (DiagnosticStatus.OK, "ok")
+        self.window.clear()
+        self.problems.clear()
+        self.since = now
+        return DiagnosticStatus(level=level, name=f"{self.node.get_fully_qualified_name()}", message=message,
+                                hardware_id=HARDWARE_ID, values=[KeyValue(key=k, value=v) for k, v in values.items()])
+
+    def publish(self) -> None:
+        msg = DiagnosticArray(status=[self.status()])
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        self.publisher.publish(msg)

@@ -1,0 +1,282 @@
+"""Bad input and faults, over DDS with the nodes in their own processes: each shows a clear error (in the
+log and on /diagnostics), a node that stays up, and nothing good lost."""
+import array
+import os
+import signal
+import threading
+import time
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rclpy.parameter_client import AsyncParameterClient
+from sensor_msgs.msg import Image, PointCloud2
+from std_msgs.msg import String
+
+from fpp_msgs_py import Frames, Qos, Topics, cloud_to_xyz, header_at, image_to_numpy, numpy_to_image, stamp_ns
+from fpp_nodes.core.calibration import default_calibration_path
+from fpp_nodes.core.model import default_model_path
+from fpp_nodes.core.patterns import line_image, pattern_lines
+from fpp_nodes.core.simulation import Rig, make_scene, render
+from rosgraph import Diagnostics
+from test_ros_sensor import check_clouds, collect, rmse_mm
+
+SHIPPED_CALIBRATION = Path(default_calibration_path())
+
+
+def bad_frames(good: np.ndarray) -> dict:
+    """Frames a camera driver might send: (message, what the node must say about it)."""
+    wrong_encoding = numpy_to_image(good)
+    wrong_encoding.encoding = "rgb8"
+    truncated = numpy_to_image(good)
+    truncated.data = array.array("B", bytes(truncated.data)[: len(truncated.data) // 2])
+    empty = Image(encoding="mono8")
+    nan = good.astype(np.float32) / 255
+    nan[100:110, 200:300] = np.nan
+    nan[0, 0] = np.inf
+    return {"wrong encoding": (wrong_encoding, "encoding 'rgb8' is not supported"),
+            "wrong size": (numpy_to_image(good[::2, ::2].copy()), "320x240"),
+            "zero-size": (empty, "image is empty"),
+            "truncated": (truncated, "image data is 153600 bytes"),
+            "NaN and Inf": (numpy_to_image(nan), None)}  # what is said depends on the path
+
+
+@lru_cache
+def captured(kind: str, seed: int):
+    rig = Rig()
+    patterns = rig.pattern_set()
+    capture = render(rig, make_scene(rig, kind, seed), patterns, np.random.default_rng(seed))
+    return patterns, capture, [line_image(patterns, line) for line in pattern_lines(patterns)]
+
+
+def test_bad_frames_into_the_multi_shot_path(ros_graph):
+    procs, robot = ros_graph
+    nodes = [procs.run("capture_sequence"), procs.run("fpp_depth")]
+    patterns, capture, lines = captured("objects", 8)
+    pattern_pub = robot.node.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)
+    camera_pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
+    calibration_pub = robot.node.create_publisher(String, Topics.CALIBRATION, Qos.LATCHED)
+    clouds = collect(robot, Topics.POINTS, PointCloud2)
+    diagnostics = Diagnostics(robot)
+    assert robot.spin_until(lambda: pattern_pub.get_subscription_count() and camera_pub.get_subscription_count()
+                            and robot.node.count_publishers(Topics.POINTS), 30)
+    time.sleep(1.0)  # let discovery settle both ways
+    calibration_pub.publish(String(data="format: fpp_calibration\nversion: 1\nmodel: [1, 2"))  # corrupt: ignored
+    good = [capture.images[i] for i in range(patterns.count)]
+    bad = bad_frames(capture.images[5])
+    plays = {"good": good}
+    plays.update({kind: [numpy_to_image(img) for img in good[:5]] + [msg] + [numpy_to_image(img) for img in good[6:]]
+                  for kind, (msg, _) in bad.items()})
+    plays["dark"] = [np.zeros_like(img) for img in good]
+    plays["saturated"] = [np.full_like(img, 255) for img in good]
+    plays["good again"] = good
+    t, first_stamps = 1_000_000_000, {}
+    for kind, frames in plays.items():
+        first_stamps[kind] = t
+        for i, frame in enumerate(frames):
+            header = header_at(t, Frames.CAMERA)
+            msg = numpy_to_image(frame) if isinstance(frame, np.ndarray) else frame
+            msg.header = header
+            pattern_pub.publish(numpy_to_image(lines[i], header))
+            camera_pub.publish(msg)
+            t += 33_000_000
+            robot.spin_until(lambda: False, 0.01)
+    assert robot.spin_until(lambda: len(clouds) >= 4, 30), procs.logs()
+    robot.spin_until(lambda: False, 2.5)  # anything more would arrive now, and /diagnostics has reported
+    stamps = [stamp_ns(c.header.stamp) for c in clouds]
+    assert stamps == [first_stamps[k] for k in ("good", "dark", "saturated", "good again")], procs.logs()
+    truth_m = np.where(capture.valid, capture.depth_mm / 1000, np.nan)
+    assert rmse_mm(clouds[0], truth_m)[0] < 0.06 and rmse_mm(clouds[3], truth_m)[0] < 0.06  # calibration kept
+    for cloud in clouds[1:3]:  # no fringes: an honest empty cloud, not a guess
+        assert np.isnan(cloud_to_xyz(cloud)).all()
+    assert all(p.poll() is None for p in nodes), procs.logs()
+    logs = procs.logs()
+    for kind, (_, message) in bad.items():
+        assert (message or "pixels are NaN or Inf") in logs, kind
+    assert f"calibration on {Topics.CALIBRATION} ignored" in logs
+    assert diagnostics.value("/capture_sequence", "frames rejected") == "5"
+    assert diagnostics.value("/capture_sequence", "sequences dropped") == "5"
+    assert diagnostics.value("/fpp_depth", "sequences without fringes") == "2"
+    assert any("usable fringes" in m for m in diagnostics.said["/fpp_depth"])
+    assert any("camera frame rejected" in m for m in diagnostics.said["/capture_sequence"])
+
+
+def test_bad_frames_into_the_single_shot_path(ros_graph):
+    procs, robot = ros_graph
+    node = procs.run("cnn_depth", "-r", "__ns:=/cnn")
+    _, capture, _ = captured("sculpture", 3)  # the kind of scene the shipped model was trained on
+    good = capture.images[-4]  # the first image of the highest frequency, as the network was trained
+    camera_pub = robot.node.create_publisher(Image, "/cnn/" + Topics.CAMERA_IMAGE, Qos.FRAMES)
+    depths = collect(robot, "/cnn/" + Topics.DEPTH, Image)
+    diagnostics = Diagnostics(robot)
+    assert robot.spin_until(lambda: camera_pub.get_subscription_count() and robot.node.count_publishers(
+        "/cnn/" + Topics.DEPTH) and "/cnn/cnn_depth" in diagnostics.latest, 60), procs.logs()
+    time.sleep(1.0)
+    inputs = {kind: msg for kind, (msg, _) in bad_frames(good).items()}
+    inputs.update({"dark": numpy_to_image(np.zeros_like(good)), "saturated": numpy_to_image(np.full_like(good, 255)),
+                   "good": numpy_to_image(good)})
+    for n, (kind, msg) in enumerate(inputs.items(), start=1):
+        msg.header = header_at(n * 1_000_000_000, Frames.CAMERA)
+        camera_pub.publish(msg)  # one at a time: the node keeps only the newest frame
+        assert robot.spin_until(lambda: diagnostics.value("/cnn/cnn_depth", "frames in") == str(n), 10), kind
+    assert robot.spin_until(lambda: len(depths) == 3, 10)
+    assert [stamp_ns(d.header.stamp) // 1_000_000_000 for d in depths] == [6, 7, 8]  # dark, saturated, good
+    dark, saturated, fine = (image_to_numpy(d) for d in depths)
+    assert np.isnan(dark).all() and np.isnan(saturated).all()  # no fringes, no made-up surface
+    truth_m = np.where(capture.valid, capture.depth_mm / 1000, np.nan)
+    ok = np.isfinite(fine) & np.isfinite(truth_m)
+    assert ok.sum() > 0.95 * np.isfinite(truth_m).sum() and np.sqrt(np.mean((fine[ok] - truth_m[ok]) ** 2)) < 0.0015
+    assert node.poll() is None
+    logs = procs.logs()
+    for message in ("encoding 'rgb8' is not supported", "takes 640x480 images", "image is empty",
+                    "image data is 153600 bytes", "mono8 or mono16"):
+        assert message in logs
+    robot.spin_until(lambda: diagnostics.value("/cnn/cnn_depth", "frames without fringes") == "2", 5)
+    assert diagnostics.value("/cnn/cnn_depth", "frames rejected") == "5"
+    assert diagnostics.value("/cnn/cnn_depth", "frames without fringes") == "2"
+    assert diagnostics.value("/cnn/cnn_depth", "model sha256", "") != ""
+
+
+def test_a_camera_that_dies_mid_sequence_and_comes_back(ros_graph):
+    """The camera process is killed mid-stream and started again: the sequence it broke is dropped and
+    counted, nothing is mixed, and clouds come again with full accuracy."""
+    procs, robot = ros_graph
+    for exe in ("pattern_projector", "capture_sequence", "fpp_depth"):
+        procs.run(exe)
+    camera = procs.run("fringe_camera_sim")
+    truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
+    clouds = collect(robot, Topics.POINTS, PointCloud2)
+    diagnostics = Diagnostics(robot)
+    check_clouds(robot, clouds, truth)
+    os.killpg(camera.pid, signal.SIGKILL)  # no goodbye: a crash or a pulled cable
+    camera.wait()
+    robot.spin_until(lambda: False, 2.0)
+    before = len(clouds)
+    procs.run("fringe_camera_sim")
+    assert robot.spin_until(lambda: len(clouds) >= before + 2, 60), procs.logs()
+    check_clouds(robot, clouds[before:], truth)
+    assert robot.spin_until(lambda: int(diagnostics.value("/capture_sequence", "sequences dropped")) >= 1, 5)
+
+
+def test_a_slow_subscriber_does_not_hold_back_a_fast_one(ros_graph):
+    """A subscriber that takes a second per cloud gets the newest ones it can; the sensor and a fast
+    subscriber go on at full rate (KEEP_LAST history: no backlog, no blocking)."""
+    from rosgraph import Robot
+    procs, robot = ros_graph
+    procs.run("sensor")
+    slow = Robot(robot.context.get_domain_id(), "slow_robot")
+    slow_got = []
+    slow.node.create_subscription(PointCloud2, Topics.POINTS, lambda m: (slow_got.append(m), time.sleep(1.0)), Qos.LARGE)
+    stop = threading.Event()
+    thread = threading.Thread(target=lambda: [slow.executor.spin_once(0.05) for _ in iter(stop.is_set, True)])
+    thread.start()
+    try:
+        fast_got = collect(robot, Topics.POINTS, PointCloud2)
+        diagnostics = Diagnostics(robot)
+        assert robot.spin_until(lambda: len(fast_got) >= 2, 60)
+        start_out, start_fast = int(diagnostics.value("/fpp_depth", "depth out")), len(fast_got)
+        robot.spin_until(lambda: False, 12.0)
+        produced = int(diagnostics.value("/fpp_depth", "depth out")) - start_out
+        received = len(fast_got) - start_fast
+    finally:
+        stop.set()
+        thread.join()
+        slow.close()
+    assert produced >= 5 and received >= produced - 2, (produced, received)
+    assert len(slow_got) < received
+    assert diagnostics.value("/capture_sequence", "sequences dropped") == "0"
+
+
+@pytest.mark.parametrize("args, message", [
+    (("-p", "frequencies:=[1, 20, 4]"), "increasing"),
+    (("-p", "rate:=-30.0"), "rate must be > 0"),
+])
+def test_out_of_range_parameters_at_start_are_one_fatal_line(ros_graph, args, message):
+    procs, _ = ros_graph
+    proc = procs.run("pattern_projector", *args)
+    assert proc.wait(timeout=30) == 2
+    assert message in procs.logs() and "Traceback" not in procs.logs()
+
+
+def test_out_of_range_parameters_at_runtime_are_refused_with_the_reason(ros_graph):
+    procs, robot = ros_graph
+    projector = procs.run("pattern_projector")
+    client = AsyncParameterClient(robot.node, "pattern_projector")
+    assert client.wait_for_services(30)
+
+    def set_value(name, kind, **value):
+        future = client.set_parameters([Parameter(name=name, value=ParameterValue(type=kind, **value))])
+        assert robot.spin_until(future.done, 10)
+        return future.result().results[0]
+
+    refused = set_value("rate", ParameterType.PARAMETER_DOUBLE, double_value=-5.0)
+    assert not refused.successful and "rate: must be > 0" in refused.reason
+    refused = set_value("steps", ParameterType.PARAMETER_INTEGER, integer_value=2)
+    assert not refused.successful and "read-only" in refused.reason
+    assert set_value("rate", ParameterType.PARAMETER_DOUBLE, double_value=60.0).successful
+    shown = collect(robot, Topics.PATTERN, Image, Qos.FRAMES)
+    assert robot.spin_until(lambda: len(shown) >= 20, 10) and projector.poll() is None
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda path: None, "No such file"),
+    (lambda path: path.write_text("model: [1, 2"), "not valid YAML"),
+    (lambda path: path.write_text(SHIPPED_CALIBRATION.read_text()[:400]), "calibration is missing patterns"),
+])
+def test_a_missing_or_corrupt_calibration_file_is_one_fatal_line(ros_graph, tmp_path, damage, message):
+    procs, _ = ros_graph
+    path = tmp_path / "calibration.yaml"
+    damage(path)
+    proc = procs.run("fpp_depth", "-p", f"calibration:={path}")
+    assert proc.wait(timeout=30) == 2
+    logs = procs.logs()
+    assert "[FATAL]" in logs and message in logs and "Traceback" not in logs, logs
+
+
+
+def corrupt_model(folder: Path) -> Path:
+    """The shipped model cut short, with a card that vouches for the cut file: onnxruntime must refuse it."""
+    import hashlib
+    import yaml
+    data = Path(default_model_path()).read_bytes()[:100_000]
+    card = yaml.safe_load(Path(default_model_path()).with_suffix(".yaml").read_text())
+    card["sha256"] = hashlib.sha256(data).hexdigest()
+    (folder / "m.onnx").write_bytes(data)
+    (folder / "m.yaml").write_text(yaml.safe_dump(card))
+    return folder / "m.onnx"
+
+
+def model_for_another_camera(folder: Path) -> Path:
+    import shutil
+    import yaml
+    shutil.copy(default_model_path(), folder / "m.onnx")
+    card = yaml.safe_load(Path(default_model_path()).with_suffix(".yaml").read_text())
+    card["input"]["camera"] = {"width": 320, "height": 240}
+    (folder / "m.yaml").write_text(yaml.safe_dump(card))
+    return folder / "m.onnx"
+
+
+def tampered_model(folder: Path) -> Path:
+    import shutil
+    shutil.copy(default_model_path(), folder / "m.onnx")
+    shutil.copy(Path(default_model_path()).with_suffix(".yaml"), folder / "m.yaml")
+    with open(folder / "m.onnx", "r+b") as f:
+        f.seek(5000)
+        f.write(b"\xff" * 8)
+    return folder / "m.onnx"
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda folder: folder / "missing.onnx", "does not exist"),
+    (corrupt_model, "cannot load model"),
+    (tampered_model, "does not match its card"),
+    (model_for_another_camera, "trained for 320x240 images"),
+])
+def test_a_missing_corrupt_or_mismatched_model_is_one_fatal_line(ros_graph, tmp_path, make, message):
+    procs, _ = ros_graph
+    proc = procs.run("cnn_depth", "-p", f"model:={make(tmp_path)}")
+    assert proc.wait(timeout=60) == 2
+    logs = procs.logs()
+    assert "[FATAL]" in logs and message in logs and "Traceback" not in logs, logs
