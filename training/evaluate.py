@@ -2,7 +2,10 @@
 of each network, beside the classical single-shot baseline (FTP on the same image) and the multi-shot
 reference, on the same scenes. Errors are at the camera's full resolution, over pixels valid in the
 reference: the multi-shot label (as the paper measures), and, in the last rows, the simulator's exact
-depth. MRE = mean(|z - z_ref| / z_ref), RMSE = sqrt(mean((z - z_ref)^2)).
+depth. MRE = mean(|z - z_ref| / z_ref), RMSE = sqrt(mean((z - z_ref)^2)). Coverage: the share of
+the exact depth's pixels a method gives a depth for; fringe-order errors: the share of those off the
+exact depth by more than half the depth one fringe period of the highest frequency spans there (about
+6 mm at the default rig), the errors a wrong fringe order makes.
 
     python -m training.evaluate --data data/fpp/single runs/fcn/best.pt runs/aen/best.pt runs/unet/best.pt
 """
@@ -17,6 +20,7 @@ import torch
 import yaml
 
 from fpp_nodes.core.calibration import Calibration
+from fpp_nodes.core.model import fringe_mask
 from fpp_nodes.core.reconstruct import reconstruct_ftp
 
 from .dataset import load_sample, split_files
@@ -26,26 +30,38 @@ from .train import load_checkpoint, model_from_checkpoint
 
 @torch.no_grad()
 def predict_full(model, image: np.ndarray, downsample: int) -> np.ndarray:
-    """What cnn_depth does: scale to [0, 1], shrink, pad to the stride, run, crop, grow back."""
+    """What cnn_depth does: scale to [0, 1], shrink, pad to the stride, run, crop, grow back, mask
+    pixels without usable fringes."""
     h, w = image.shape
     x = image.astype(np.float32) / np.iinfo(image.dtype).max
     if downsample > 1:
         x = cv2.resize(x, (w // downsample, h // downsample), interpolation=cv2.INTER_AREA)
     padded, (ph, pw) = pad_to_stride(torch.from_numpy(x)[None, None])
     depth = model(padded)[0, 0, :ph, :pw].numpy()
-    return cv2.resize(depth, (w, h), interpolation=cv2.INTER_LINEAR) if downsample > 1 else depth
+    depth = cv2.resize(depth, (w, h), interpolation=cv2.INTER_LINEAR) if downsample > 1 else depth
+    depth[~fringe_mask(image)] = np.nan
+    return depth
 
 
 class Errors:
     def __init__(self):
-        self.sq = self.rel = self.n = 0.0
+        self.sq = self.rel = self.n = self.n_ref = self.orders = 0.0
 
-    def add(self, pred, ref):
+    def add(self, pred, ref, half_fringe_mm=None):
         ok = np.isfinite(pred) & np.isfinite(ref)
         d = pred[ok].astype(np.float64) - ref[ok]
         self.sq += float(d @ d)
         self.rel += float(np.sum(np.abs(d) / ref[ok]))
         self.n += int(ok.sum())
+        self.n_ref += int(np.isfinite(ref).sum())
+        if half_fringe_mm is not None:
+            self.orders += int(np.count_nonzero(np.abs(d) > half_fringe_mm[ok]))
+
+    def coverage(self):
+        return self.n / max(self.n_ref, 1)
+
+    def order_errors(self):
+        return self.orders / max(self.n, 1)
 
     def rmse(self):
         return np.sqrt(self.sq / max(self.n, 1))
@@ -66,27 +82,36 @@ def main(argv=None):
     for path in args.checkpoints:
         ckpt = load_checkpoint(path)
         model, cfg = model_from_checkpoint(ckpt)
-        models.append((cfg.arch.upper(), model, cfg.downsample, ckpt["train_seconds"]))
+        models.append((cfg.arch.upper(), model, cfg.downsample, ckpt["train_seconds"], f"{ckpt['epoch']}/{cfg.epochs}"))
     columns = [m[0] for m in models] + ["FTP", "multi-shot"]
+    cam = calibration.camera
+    u, v = np.arange(cam.width, dtype=np.float64)[None, :], np.arange(cam.height, dtype=np.float64)[:, None]
     table = {}
     for split in ("train", "val", "test"):
         errs = {c: (Errors(), Errors()) for c in columns}  # vs label, vs exact depth
         for f in split_files(args.data, split)[: args.limit or None]:
             image, label, truth = load_sample(f)
-            preds = {name: predict_full(model, image, ds) for name, model, ds, _ in models}
+            preds = {name: predict_full(model, image, ds) for name, model, ds, *_ in models}
             preds["FTP"] = reconstruct_ftp(image, calibration).depth_mm
             preds["multi-shot"] = label
+            phase = calibration.model.phase_at_depth(truth, u, v)
+            half_fringe = np.abs(calibration.model.depth_per_radian(phase, u, v)) * np.pi
             for c in columns:
                 errs[c][0].add(preds[c], label)
-                errs[c][1].add(preds[c], truth)
+                errs[c][1].add(preds[c], truth, half_fringe)
         table[split] = errs
     hours = {m[0]: f"{m[3] / 3600:.2f} h" for m in models}
     print(f"{'':28}" + "".join(f"{c:>12}" for c in columns))
+    epochs = {m[0]: m[4] for m in models}
     print(f"{'training time (CPU)':28}" + "".join(f"{hours.get(c, '-'):>12}" for c in columns))
+    print(f"{'best epoch / epochs':28}" + "".join(f"{epochs.get(c, '-'):>12}" for c in columns))
     for split, label in (("train", "Training"), ("val", "Validation"), ("test", "Test")):
         print(f"{label + ' MRE':28}" + "".join(f"{table[split][c][0].mre():12.2e}" for c in columns))
         print(f"{label + ' RMSE (mm)':28}" + "".join(f"{table[split][c][0].rmse():12.3f}" for c in columns))
-    print(f"{'Test RMSE vs exact (mm)':28}" + "".join(f"{table['test'][c][1].rmse():12.3f}" for c in columns))
+    exact = table["test"]
+    print(f"{'Test RMSE vs exact (mm)':28}" + "".join(f"{exact[c][1].rmse():12.3f}" for c in columns))
+    print(f"{'Test coverage vs exact':28}" + "".join(f"{exact[c][1].coverage():12.2%}" for c in columns))
+    print(f"{'Test fringe-order errors':28}" + "".join(f"{exact[c][1].order_errors():12.3%}" for c in columns))
     print("errors against the multi-shot label (the paper's ground truth) unless marked exact; "
           "the multi-shot column vs its own label is 0 by definition")
 
