@@ -33,6 +33,12 @@ def test_bag_round_trip_and_damage(tmp_path, storage):
         read_bag(tmp_path / "bag")
     with pytest.raises(BagError, match="does not exist"):
         read_bag(tmp_path / "none")
+    data.write_bytes(bytes(range(256)) * 64)  # not a bag file at all
+    with pytest.raises(BagError, match="cannot read bag"):
+        read_bag(tmp_path / "bag")
+    (tmp_path / "bag" / "metadata.yaml").write_text("rosbag2_bagfile_information: [")
+    with pytest.raises(BagError, match="cannot read bag"):
+        read_bag(tmp_path / "bag")
 
 
 @pytest.fixture(scope="module")
