@@ -2,8 +2,8 @@
 
     fpp simulate    rig + scene -> fringe images + ground truth
     fpp calibrate   captures of planes at known depths -> calibration file
-    fpp reconstruct fringe images -> depth (.npy/.tiff), point cloud (.ply), depth picture (.png)
-    fpp evaluate    depth vs ground truth -> RMSE, MRE, coverage
+    fpp reconstruct fringe images -> depth (.npy/.tiff), point cloud (.ply), pictures (.png)
+    fpp evaluate    depth vs ground truth -> RMSE, MRE, coverage (and pictures of the error)
     fpp demo        all of the above on the simulated rig, with a table of the results
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from .core import io
+from .core import io, pictures
 from .core.calibration import Calibration, CalibrationError, CameraIntrinsics
 from .core.metrics import depth_errors
 from .core.patterns import PatternSet
@@ -98,6 +98,42 @@ def _reconstruct(images: np.ndarray, calibration: Calibration, method: str, limi
     return reconstruct_ftp(images[index], calibration, limits)
 
 
+def write_pictures(out: Path, depth_mm: np.ndarray, xyz_mm: np.ndarray | None = None, truth_mm: np.ndarray | None = None,
+                   name: str = "", method: str = "measured", others: dict | None = None) -> list[Path]:
+    """depth.png (scale bar in mm), cloud.png (oblique view), error.png (with ground truth) and
+    profile.png (depth along the row that crosses the objects: truth, this method and others, a dict
+    of name -> depth); colours on the truth's range where given. name suffixes all but the profile's
+    file name (name "psp" -> depth_psp.png)."""
+    suffix = f"_{name}" if name else ""
+    reference = truth_mm if truth_mm is not None else depth_mm
+    lo, hi = pictures.depth_range(reference)
+    row = pictures.profile_row(reference)
+    curves = {"ground truth": truth_mm} if truth_mm is not None else {}
+    curves.update({method: depth_mm, **(others or {})})
+    drawn = {f"depth{suffix}.png": pictures.depth_picture(depth_mm, lo, hi, title=f"{method} depth"),
+             "profile.png": pictures.height_profile(row, {k: v[row] for k, v in curves.items()})}
+    if xyz_mm is not None:
+        drawn[f"cloud{suffix}.png"] = pictures.cloud_view(xyz_mm, lo=lo, hi=hi)
+    if truth_mm is not None:
+        drawn[f"error{suffix}.png"] = pictures.error_picture(depth_mm, truth_mm, title=f"{method} - truth")
+    for file, img in drawn.items():
+        cv2.imwrite(str(out / file), img)
+    return [out / file for file in drawn]
+
+
+def _truth_beside(images: list, truth: str | None) -> np.ndarray | None:
+    """The ground truth in mm (NaN where not lit) given with --truth, or the one fpp simulate wrote
+    beside the images (depth_gt_mm.npy, valid_gt.png)."""
+    folder = Path(images[0]) if len(images) == 1 and Path(images[0]).is_dir() else None
+    if truth is None and (folder is None or not (folder / "depth_gt_mm.npy").is_file()):
+        return None
+    depth = io.read_depth(truth or folder / "depth_gt_mm.npy")
+    mask = (Path(truth).parent if truth else folder) / "valid_gt.png"
+    if mask.is_file():
+        depth = np.where(io.read_image(mask) > 0, depth, np.nan)
+    return depth
+
+
 def cmd_reconstruct(args) -> None:
     calibration = Calibration.load(args.calibration)
     images = io.read_stack(io.image_paths(args.images))
@@ -108,9 +144,13 @@ def cmd_reconstruct(args) -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     io.write_depth(out, "depth_mm", rec.depth_mm)
-    cv2.imwrite(str(out / "depth.png"), io.depth_picture(rec.depth_mm))
     points = io.write_ply(out / "points.ply", rec.xyz_mm / 1000.0, images.mean(axis=0))
     print(f"{args.method}: {points} points ({rec.valid.mean():.1%} of pixels) in {elapsed * 1000:.1f} ms -> {out}")
+    truth = _truth_beside(args.images, args.truth)
+    if truth is not None and truth.shape != rec.depth_mm.shape:
+        raise io.InputError(f"ground truth is {truth.shape[1]}x{truth.shape[0]}, the images {images.shape[2]}x{images.shape[1]}")
+    written = write_pictures(out, rec.depth_mm, rec.xyz_mm, truth, method=args.method.upper())
+    print("pictures: " + ", ".join(str(p) for p in written))
 
 
 def cmd_evaluate(args) -> None:
@@ -126,6 +166,12 @@ def cmd_evaluate(args) -> None:
         valid = mask > 0
     e = depth_errors(pred, truth, valid)
     print(f"RMSE {e.rmse_mm:.4f} mm   MRE {e.mre:.3e}   coverage {e.coverage:.1%}   pixels {e.pixels}")
+    if args.pictures:
+        out = Path(args.pictures)
+        out.mkdir(parents=True, exist_ok=True)
+        written = write_pictures(out, pred, None, truth if valid is None else np.where(valid, truth, np.nan),
+                                 method="prediction")
+        print("pictures: " + ", ".join(str(p) for p in written))
 
 
 def cmd_demo(args) -> None:
@@ -139,7 +185,7 @@ def cmd_demo(args) -> None:
     calibration.save(out / "calibration.yaml")
     print("  fit RMSE per plane (um): " + ", ".join(f"{r * 1000:.1f}" for r in residuals))
     psp = PspReconstructor(calibration)
-    rows = []
+    rows, written = [], []
     for name, scene, seed in tqdm(list(held_out_scenes(rig, args.scenes, args.seed + 1000)), desc="scenes", disable=None):
         capture = render(rig, scene, patterns, np.random.default_rng(seed))
         start = time.perf_counter()
@@ -150,10 +196,14 @@ def cmd_demo(args) -> None:
         ftp = depth_errors(single.depth_mm, capture.depth_mm, capture.valid, fringe_depth_mm(calibration, multi.phase))
         folder = out / name
         folder.mkdir(exist_ok=True)
+        truth = np.where(capture.valid, capture.depth_mm, np.nan)
         for method, rec in (("psp", multi), ("ftp", single)):
             io.write_depth(folder, f"depth_{method}_mm", rec.depth_mm)
-            cv2.imwrite(str(folder / f"depth_{method}.png"), io.depth_picture(rec.depth_mm))
-        cv2.imwrite(str(folder / "depth_truth.png"), io.depth_picture(np.where(capture.valid, capture.depth_mm, np.nan)))
+        written = write_pictures(folder, multi.depth_mm, multi.xyz_mm, truth, "psp", "PSP", {"FTP": single.depth_mm})
+        cv2.imwrite(str(folder / "depth_ftp.png"), pictures.depth_picture(single.depth_mm, *pictures.depth_range(truth), "FTP depth"))
+        cv2.imwrite(str(folder / "error_ftp.png"), pictures.error_picture(single.depth_mm, truth, title="FTP - truth"))
+        cv2.imwrite(str(folder / "depth_truth.png"), pictures.depth_picture(truth, title="ground truth"))
+        written += [folder / n for n in ("depth_ftp.png", "error_ftp.png", "depth_truth.png")]
         io.write_ply(folder / "points_psp.ply", multi.xyz_mm / 1000.0, capture.images[0])
         cv2.imwrite(str(folder / "input.png"), capture.images[-patterns.steps])
         rows.append((name, result, ftp, psp_ms))
@@ -165,7 +215,8 @@ def cmd_demo(args) -> None:
         e = r.errors
         print(f"{name:18} {e.rmse_mm:11.4f} {r.noise_limited_rmse_mm:11.4f} {e.rmse_mm / r.noise_limited_rmse_mm:6.2f} "
               f"{e.order_errors:6d} {e.coverage:6.1%} {f.rmse_mm:11.3f} {f.order_errors:10d} {ms:7.1f}")
-    print(f"\nwrote depth (.npy/.tiff/.png) and point clouds (.ply, metres) to {out}")
+    print(f"\nwrote depth (.npy/.tiff), point clouds (.ply, metres) and pictures to {out}:")
+    print("  " + ", ".join(p.name for p in written) + " in each scene's folder")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -198,6 +249,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="psp: all images; ftp: one image (the first of the highest frequency)")
     p.add_argument("--min-modulation", type=float, default=QualityLimits.min_modulation)
     p.add_argument("--max-depth-step", type=float, default=QualityLimits.max_depth_step_mm)
+    p.add_argument("--truth", help="ground-truth depth in mm (.npy/.tiff) for error.png (default: the folder's "
+                                   "depth_gt_mm.npy, as fpp simulate writes it)")
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_reconstruct)
 
@@ -205,6 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("prediction", help=".npy or float TIFF depth in mm")
     p.add_argument("truth", help=".npy or float TIFF depth in mm")
     p.add_argument("--valid", help="mask image of the ground truth's valid pixels")
+    p.add_argument("--pictures", metavar="DIR", help="also write error.png, depth.png and profile.png there")
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("demo", help="simulate, calibrate, reconstruct and evaluate end to end")

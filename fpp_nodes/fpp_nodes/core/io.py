@@ -6,6 +6,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .pictures import depth_colours
+
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
 
 
@@ -83,16 +85,9 @@ def write_depth(folder, name: str, depth_mm: np.ndarray) -> None:
 
 
 def depth_picture(depth_mm: np.ndarray, near: float | None = None, far: float | None = None) -> np.ndarray:
-    """Colour-mapped depth (turbo, near = red) with invalid pixels black, as BGR uint8."""
-    finite = np.isfinite(depth_mm)
-    if not finite.any():
-        return np.zeros(depth_mm.shape + (3,), np.uint8)
-    lo = np.percentile(depth_mm[finite], 1) if near is None else near
-    hi = np.percentile(depth_mm[finite], 99) if far is None else far
-    scaled = np.clip((hi - np.where(finite, depth_mm, hi)) / max(hi - lo, 1e-9), 0, 1)
-    picture = cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
-    picture[~finite] = 0
-    return picture
+    """Colour-mapped depth (turbo, near = red) without a scale bar, as BGR uint8; invalid pixels grey.
+    pictures.depth_picture adds the scale bar."""
+    return depth_colours(depth_mm, near, far)
 
 
 def write_ply(path, xyz: np.ndarray, grey: np.ndarray | None = None) -> int:

@@ -1,6 +1,7 @@
 """demo: the main job. Starts the simulated sensor (projector -> camera -> capture -> multi-shot depth)
-in its own process, subscribes as a robot would, writes a few point clouds (.ply) and depth pictures,
-and prints the latency of each stage and the accuracy against the simulator's ground truth.
+in its own process, subscribes as a robot would, writes a few point clouds (.ply) and pictures of
+them (depth, error against the simulator's ground truth, a rendered view, a height profile), and
+prints the latency of each stage and the accuracy against the ground truth.
 
     ros2 run fpp_nodes demo [--out out/demo] [--clouds 5] [--scene sculpture] [--seed 0]
 """
@@ -22,7 +23,7 @@ from sensor_msgs.msg import Image, PointCloud2
 
 from fpp_msgs_py import Qos, Topics, cloud_to_xyz, image_to_numpy, stamp_ns
 
-from ..core import io
+from ..core import io, pictures
 
 class Robot(Node):
     """Subscribes to everything a robot and its operator look at, noting when each message arrives."""
@@ -99,13 +100,29 @@ def cloud_rmse_mm(cloud, truth) -> tuple[float, float]:
     return float(np.sqrt(np.mean((z[ok] - truth[ok]) ** 2)) * 1000), ok.sum() / np.isfinite(truth).sum()
 
 
+def write_pictures(out: Path, clouds: list, truth_m: np.ndarray, prefix: str, label: str) -> np.ndarray | None:
+    """depth and error pictures of every cloud, a rendered view of the first; colours on the truth's
+    range, so both paths' pictures compare. Returns the first cloud's depth (mm) for the profile."""
+    truth = truth_m * 1000.0
+    lo, hi = pictures.depth_range(truth)
+    first = None
+    for i, (cloud, _) in enumerate(clouds):
+        xyz = cloud_to_xyz(cloud)
+        depth = xyz[..., 2] * 1000.0
+        cv2.imwrite(str(out / f"{prefix}depth_{i:02d}.png"), pictures.depth_picture(depth, lo, hi, f"{label} depth"))
+        cv2.imwrite(str(out / f"{prefix}error_{i:02d}.png"), pictures.error_picture(depth, truth, title=f"{label} - truth"))
+        if i == 0:  # the scene does not move: one view is enough
+            cv2.imwrite(str(out / f"{prefix}cloud_{i:02d}.png"), pictures.cloud_view(xyz, lo=lo / 1000, hi=hi / 1000))
+            first = depth
+    return first
+
+
 def report(robot: Robot, out: Path) -> None:
     rows = per_cloud(robot)
     for i, (cloud, _) in enumerate(robot.clouds):
         io.write_ply(out / f"cloud_{i:02d}.ply", cloud_to_xyz(cloud))
-        depth = robot.depths.get(stamp_ns(cloud.header.stamp))
-        if depth is not None:
-            cv2.imwrite(str(out / f"depth_{i:02d}.png"), io.depth_picture(image_to_numpy(depth) * 1000.0))
+    curves = {"ground truth": robot.truth * 1000.0,
+              "multi-shot": write_pictures(out, robot.clouds, robot.truth, "", "multi-shot")}
     print(f"\n{len(rows)} clouds (640x480, organized) from the simulated sensor; milliseconds, from the stamps "
           "(when each pattern was shown) to arrival here")
     print(f"{'cloud':>5} {'camera':>7} {'capture+depth':>13} {'end-to-end':>10} {'sequence':>9} {'RMSE mm':>8} {'cover':>6}")
@@ -121,7 +138,12 @@ def report(robot: Robot, out: Path) -> None:
         for i, (cloud, arrived) in enumerate(robot.cnn_clouds):
             io.write_ply(out / f"cnn_cloud_{i:02d}.ply", cloud_to_xyz(cloud))
             print(f"{i:5d} {(arrived - stamp_ns(cloud.header.stamp)) / 1e6:15.1f} {cloud_rmse_mm(cloud, robot.truth)[0]:8.3f}")
-    print(f"wrote {len(robot.clouds)} .ply clouds (metres) and depth pictures to {out}")
+        curves["single-shot (CNN)"] = write_pictures(out, robot.cnn_clouds, robot.truth, "cnn_", "single-shot")
+    row = pictures.profile_row(curves["ground truth"])
+    cv2.imwrite(str(out / "profile.png"), pictures.height_profile(row, {k: v[row] for k, v in curves.items()}))
+    print(f"wrote {len(robot.clouds) + len(robot.cnn_clouds)} .ply clouds (metres) and their pictures to {out}: "
+          "[cnn_]depth_NN.png, [cnn_]error_NN.png (against the simulator's exact depth), [cnn_]cloud_00.png "
+          "(rendered view), profile.png (depth along one row)")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,163 @@
+"""The paper's Figures 2 and 3 for our data and networks, as PNG files.
+
+    python -m training.figures --data data/fpp/single --out docs/pictures \\
+        runs/fcn/best.pt runs/aen/best.pt runs/default-unet/best.pt      # checkpoints or ONNX models, any subset
+
+figure2.png  a few test samples, a row each: the input fringe image (the line of Figure 3 marked),
+             the ground truth (the simulator's exact depth), and each network's reconstruction,
+             rendered as 3-D surfaces with the background removed, as in the paper
+figure3.png  height above the background plane along that line: ground truth, the multi-shot label
+             (the paper's ground truth), each network, and FTP on the same image
+
+The background plane is fitted to the ground truth (image border first, then every pixel within
+0.5 mm of it); "object" pixels are those more than 1 mm in front of it. --also copies other pictures
+(e.g. the `fpp` tool's) into the same folder, optionally scaled, as <folder>_<name>.png.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from fpp_nodes.core import pictures
+from fpp_nodes.core.calibration import Calibration
+from fpp_nodes.core.reconstruct import reconstruct_ftp
+
+from .dataset import load_sample, split_files
+
+PNG = [cv2.IMWRITE_PNG_COMPRESSION, 9]
+MARK_BGR = (0, 0, 230)  # the profile's line on the input image
+NAMES = {"fcn": "FCN", "aen": "AEN", "unet": "UNet"}  # as the paper writes them
+
+
+def load_models(paths) -> list[tuple[str, object]]:
+    """(name, image -> depth mm) of each checkpoint (.pt, run with torch as training.evaluate does)
+    or ONNX model (.onnx with its card, run with onnxruntime as cnn_depth does)."""
+    models = []
+    for path in map(Path, paths):
+        if path.suffix == ".onnx":
+            from fpp_nodes.core.model import DepthModel
+            model = DepthModel(path)
+            name, predict = NAMES.get(str(model.card.get("architecture")), path.stem), model
+        else:
+            from .evaluate import predict_full
+            from .train import load_checkpoint, model_from_checkpoint
+            net, cfg = model_from_checkpoint(load_checkpoint(path))
+            name, predict = NAMES.get(cfg.arch, cfg.arch), (lambda image, net=net, ds=cfg.downsample: predict_full(net, image, ds))
+        taken = [n for n, _ in models]
+        models.append((name if name not in taken else f"{name} ({path.parent.name})", predict))
+    return models
+
+
+def background_plane(truth: np.ndarray, border: int = 16) -> np.ndarray:
+    """The plane z = a u + b v + c (mm) of the background behind the objects, per pixel."""
+    v, u = np.mgrid[:truth.shape[0], :truth.shape[1]].astype(np.float64)
+    ok = np.isfinite(truth)
+    fit = ok.copy()
+    fit[border:-border, border:-border] = False
+    plane = None
+    for _ in range(3):
+        a = np.stack([u[fit], v[fit], np.ones(int(fit.sum()))], axis=1)
+        coef = np.linalg.lstsq(a, truth[fit].astype(np.float64), rcond=None)[0]
+        plane = coef[0] * u + coef[1] * v + coef[2]
+        fit = ok & (np.abs(truth - plane) < 0.5)
+    return plane
+
+
+def object_box(mask: np.ndarray, margin: int = 12) -> tuple[slice, slice]:
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        return slice(None), slice(None)
+    return (slice(max(rows[0] - margin, 0), rows[-1] + margin + 1),
+            slice(max(cols[0] - margin, 0), cols[-1] + margin + 1))
+
+
+def figures(files, models, calibration: Calibration, panel: int = 260, row: int | None = None):
+    """(Figure 2, Figure 3) as BGR images for the samples in files."""
+    rows2, profiles = [], []
+    for f in files:
+        image, label, truth = load_sample(f)
+        preds = {name: predict(image) for name, predict in models}
+        plane = background_plane(truth)
+        obj = np.isfinite(truth) & (plane - truth > 1.0)
+        rs, cs = object_box(obj)
+        line = pictures.profile_row(np.where(obj, truth, np.nan)) if row is None else row
+        lo, hi = pictures.depth_range(truth[obj])
+
+        def view(depth):
+            return pictures.cloud_view(np.where(obj, depth, np.nan), calibration.camera, size=(panel, panel),
+                                       lo=lo, hi=hi, step=1)
+
+        marked = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+        cv2.line(marked, (0, line), (image.shape[1] - 1, line), MARK_BGR, 2)
+        crop = marked[rs, cs]
+        tiles = [cv2.resize(crop, (max(1, round(crop.shape[1] * panel / crop.shape[0])), panel), interpolation=cv2.INTER_AREA),
+                 view(truth)] + [view(p) for p in preds.values()]
+        rows2.append(pictures.side_by_side(tiles, [f"input, row {line}", "ground truth"] + list(preds)))
+        curves = {"ground truth": truth, "multi-shot label": label, **preds,
+                  "FTP": reconstruct_ftp(image, calibration).depth_mm}
+        heights = {name: (plane - depth)[line, cs] for name, depth in curves.items()}
+        top = float(np.nanmax(heights["ground truth"]))
+        profiles.append(pictures.height_profile(line, heights, ylabel="height above the background (mm)",
+                                                ylim=(-0.15 * top - 1, 1.2 * top + 1), x_start=cs.start or 0,
+                                                title=f"{Path(f).stem}, row {line}"))
+    width = max(r.shape[1] for r in rows2)
+    gap = np.full((8, width, 3), 255, np.uint8)
+    figure2 = np.vstack(sum(([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=255), gap]
+                             for r in rows2), [])[:-1])
+    return figure2, pictures.side_by_side(profiles)
+
+
+def copy_scaled(item: str, out: Path) -> Path:
+    """FILE or FILE:SCALE -> out/<folder>_<name>, resized by SCALE."""
+    path, sep, scale = item.rpartition(":")
+    if not sep or not scale.replace(".", "", 1).isdigit():
+        path, scale = item, "1"
+    img = cv2.imread(path, cv2.IMREAD_COLOR)
+    if img is None:
+        raise ValueError(f"cannot read picture {path}")
+    if float(scale) != 1:
+        img = cv2.resize(img, None, fx=float(scale), fy=float(scale), interpolation=cv2.INTER_AREA)
+    target = out / f"{Path(path).parent.name}_{Path(path).name}"
+    cv2.imwrite(str(target), img, PNG)
+    return target
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="python -m training.figures", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("models", nargs="*", help="checkpoints (.pt) or ONNX models (.onnx with card), any subset")
+    parser.add_argument("--data", help="a data set folder (training.dataset); without it only --also is done")
+    parser.add_argument("--out", required=True)
+    parser.add_argument("--split", default="test")
+    parser.add_argument("--samples", type=int, default=2, help="rows of Figure 2, spread over the split")
+    parser.add_argument("--row", type=int, default=None, help="image row of Figure 3 (default: across the object)")
+    parser.add_argument("--panel", type=int, default=260, help="panel height of Figure 2, px")
+    parser.add_argument("--also", action="append", default=[], metavar="FILE[:SCALE]",
+                        help="another picture to copy beside them (repeat for more)")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = [copy_scaled(item, out) for item in args.also]
+    data = Path(args.data) if args.data else None
+    if data is None or not (data / "dataset.yaml").is_file():
+        print(f"no data set at {data} (python -m training.dataset makes it): Figures 2 and 3 skipped")
+    else:
+        calibration = Calibration.from_dict(yaml.safe_load((data / "dataset.yaml").read_text())["calibration"])
+        files = split_files(data, args.split)
+        if not files:
+            raise SystemExit(f"{data} has no {args.split} samples")
+        files = [files[i] for i in np.linspace(0, len(files) - 1, min(args.samples, len(files))).round().astype(int)]
+        figure2, figure3 = figures(files, load_models(args.models), calibration, args.panel, args.row)
+        for name, img in (("figure2.png", figure2), ("figure3.png", figure3)):
+            cv2.imwrite(str(out / name), img, PNG)
+            written.append(out / name)
+    for p in written:
+        print(f"wrote {p} ({p.stat().st_size // 1024} KB)")
+
+
+if __name__ == "__main__":
+    main()
