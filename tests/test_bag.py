@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import Image, PointCloud2
 
 from fpp_msgs_py import Qos, Topics, cloud_to_xyz, stamp_ns
@@ -56,10 +57,12 @@ def recorded(tmp_path_factory):
         robot.node.create_subscription(PointCloud2, Topics.POINTS, clouds.append, Qos.LARGE)
         procs.run("sensor", "-p", f"calibration:={d / 'cal.yaml'}", "-p", "scene:=objects", "-p", "seed:=4")
         assert robot.spin_until(lambda: len(clouds) >= 1, 60)
-        procs.run("record", "-p", f"output:={d / 'bag'}", "-p", f"calibration:={d / 'cal.yaml'}")
-        assert robot.spin_until(lambda: robot.node.count_subscribers(Topics.PATTERN) >= 3, 30)  # camera, capture, record
+        procs.run("record", "-p", f"output:={d / 'bag'}", "-p", f"calibration:={d / 'cal.yaml'}", "-p", "outputs:=true")
+        assert robot.spin_until(lambda: robot.node.count_subscribers(Topics.PATTERN) >= 3  # camera, capture, record
+                                and robot.node.count_subscribers(Topics.CAMERA_IMAGE) >= 2  # capture, record
+                                and robot.node.count_subscribers(Topics.POINTS) >= 2, 30)  # this robot, record
         recording_from = len(clouds)
-        assert robot.spin_until(lambda: len(clouds) >= recording_from + 8, 60)
+        assert robot.spin_until(lambda: len(clouds) >= recording_from + 10, 60)
     finally:
         procs.stop()
         if robot:
@@ -69,6 +72,8 @@ def recorded(tmp_path_factory):
 
 def test_replay_reconstructs_identical_clouds_without_the_original_parameters(recorded, tmp_path):
     d, live = recorded
+    with Reader(d / "bag") as reader:  # the outputs are in the bag to look at; the replay makes them anew
+        assert {"/points", "/depth/image"} <= {c.topic for c in reader.connections if c.msgcount > 0}
     assert Calibration.from_yaml(read_bag(d / "bag").calibration_yaml).to_dict() == Calibration.load(d / "cal.yaml").to_dict()
     procs = Processes(fresh_domain_id(), tmp_path)
     robot = Robot(procs.domain_id)

@@ -2,7 +2,8 @@
 
 A bag holds the raw stream (projector/pattern, camera/image_raw, camera/camera_info) as the CDR
 bytes that crossed DDS, and the calibration as a std_msgs/String on fpp/calibration, so that a
-replay reconstructs without the original parameters. MCAP by default (it opens in Foxglove), sqlite3
+replay reconstructs without the original parameters; optionally also the sensor's outputs (points,
+depth/image, depth/camera_info), to look at; a replay leaves those out and makes them anew. MCAP by default (it opens in Foxglove), sqlite3
 on request; message definitions are stored, so the stock `ros2 bag` reads both.
 """
 from __future__ import annotations
@@ -16,6 +17,8 @@ from rosbags.typesys import Stores, get_typestore
 CALIBRATION_TOPIC = "/fpp/calibration"
 STREAM_TOPICS = {"/projector/pattern": "sensor_msgs/msg/Image", "/camera/image_raw": "sensor_msgs/msg/Image",
                  "/camera/camera_info": "sensor_msgs/msg/CameraInfo"}
+OUTPUT_TOPICS = {"/points": "sensor_msgs/msg/PointCloud2", "/depth/image": "sensor_msgs/msg/Image",
+                 "/depth/camera_info": "sensor_msgs/msg/CameraInfo"}
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
 
@@ -68,12 +71,12 @@ def read_bag(path) -> Recording:
     got = {}
     for topic, *_ in messages:
         got[topic] = got.get(topic, 0) + 1
-    if any(got.get(topic, 0) != n for topic, n in counts.items()):
+    if any(got.get(topic, 0) < n for topic, n in counts.items()):  # more than promised: cut off at close, intact
         raise BagError(f"bag {path} is truncated: its index promises {counts}, it holds {got}")
-    if not any(topic != CALIBRATION_TOPIC for topic, *_ in messages):
+    if not any(topic in STREAM_TOPICS for topic, *_ in messages):
         raise BagError(f"bag {path} holds no fringe stream")
     calibration = None
     for topic, msgtype, _, data in messages:
         if topic == CALIBRATION_TOPIC:
             calibration = TYPESTORE.deserialize_cdr(data, msgtype).data
-    return Recording([m for m in messages if m[0] != CALIBRATION_TOPIC], calibration)
+    return Recording([m for m in messages if m[0] in STREAM_TOPICS], calibration)

@@ -8,14 +8,15 @@ import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import String
 
 from fpp_msgs_py import Qos, Topics
 
 from ..core.calibration import Calibration, CalibrationError, default_calibration_path
 
-MESSAGE_TYPES = {"sensor_msgs/msg/Image": Image, "sensor_msgs/msg/CameraInfo": CameraInfo}
+MESSAGE_TYPES = {"sensor_msgs/msg/Image": Image, "sensor_msgs/msg/CameraInfo": CameraInfo,
+                 "sensor_msgs/msg/PointCloud2": PointCloud2}
 
 
 class ConfigError(ValueError):
