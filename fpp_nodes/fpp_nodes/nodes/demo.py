@@ -28,16 +28,14 @@ from ..core import io, pictures
 class Robot(Node):
     """Subscribes to everything a robot and its operator look at, noting when each message arrives."""
 
-    def __init__(self, depth_images: bool = True):
+    def __init__(self):
         super().__init__("demo_robot")
-        self.frames, self.clouds, self.cnn_clouds, self.depths, self.truth = {}, [], [], {}, None
+        self.frames, self.clouds, self.cnn_clouds, self.truth = {}, [], [], None
         clock = time.time_ns
         self.create_subscription(Image, Topics.CAMERA_IMAGE, lambda m: self.frames.__setitem__(stamp_ns(m.header.stamp), clock()), Qos.FRAMES)
         self.create_subscription(PointCloud2, Topics.POINTS, lambda m: self.clouds.append((m, clock())), Qos.LARGE)
         self.create_subscription(PointCloud2, "cnn/" + Topics.POINTS, lambda m: self.cnn_clouds.append((m, clock())),
                                  Qos.LARGE)
-        if depth_images:
-            self.create_subscription(Image, Topics.DEPTH, lambda m: self.depths.__setitem__(stamp_ns(m.header.stamp), m), Qos.LARGE)
         self.create_subscription(Image, Topics.TRUTH, lambda m: setattr(self, "truth", image_to_numpy(m).copy()), Qos.LATCHED)
 
 
