@@ -123,10 +123,9 @@ def test_broken_sequences_over_dds_are_dropped_never_mixed(ros_graph):
     for cloud in clouds:
         assert rmse_mm(cloud, truth_m)[0] < 0.06
     procs.stop()
-    warnings = "\n".join(line for line in procs.logs().splitlines() if "sequence dropped (" in line)
-    # the swapped pair shows as a missing frame (4 came when 3 was due)
-    assert warnings.count("missing frame") == 2 and warnings.count("duplicated frame") == 1
-    assert "sequences complete 2, dropped 3" in procs.logs()  # the counts printed at shutdown
+    assert "sequence dropped (missing frame: expected pattern 5, got 6)" in procs.logs()  # logged as it happens
+    # the counts printed at shutdown; the swapped pair shows as a missing frame (4 came when 3 was due)
+    assert "sequences complete 2, dropped 3 {'missing frame': 2, 'duplicated frame': 1}" in procs.logs()
 
 
 def test_a_bad_parameter_is_one_fatal_line(ros_graph):

@@ -27,7 +27,7 @@ class CaptureSequence(Node):
     def __init__(self, **kwargs):
         super().__init__("capture_sequence", **kwargs)
         self.health = Health(self)
-        self._use(load_calibration(self))
+        self._use(*load_calibration(self))
         follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
         self.max_offset_ns = int(declare(self, "max_time_offset", 0.005,
                                          "largest |camera stamp - pattern stamp| of a match, seconds") * 1e9)
@@ -40,7 +40,7 @@ class CaptureSequence(Node):
         self.create_subscription(Image, Topics.PATTERN, self._on_pattern, Qos.FRAMES)
         self.create_subscription(Image, Topics.CAMERA_IMAGE, self._on_frame, Qos.FRAMES)
 
-    def _use(self, calibration, source="parameter calibration"):
+    def _use(self, calibration, source):
         patterns = calibration.patterns
         self.calibration = calibration
         self.health.facts["calibration"] = describe(calibration, source)

@@ -39,8 +39,8 @@ class CnnDepth(Node):
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
         self.health = Health(self)
-        self.calibration = load_calibration(self)
-        self.health.facts["calibration"] = describe(self.calibration, "parameter calibration")
+        self.calibration, source = load_calibration(self)
+        self.health.facts["calibration"] = describe(self.calibration, source)
         self.model = DepthModel(path or default_model_path(), providers, threads)
         cam = self.calibration.camera
         if (cam.width, cam.height) != self.model.size:

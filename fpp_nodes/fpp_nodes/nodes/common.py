@@ -29,12 +29,13 @@ def declare(node: Node, name: str, default, description: str, read_only: bool = 
     return node.get_parameter(name).value
 
 
-def load_calibration(node: Node) -> Calibration:
+def load_calibration(node: Node) -> tuple[Calibration, str]:
+    """The calibration named by the node's `calibration` parameter, and where it came from."""
     path = declare(node, "calibration", "", "calibration YAML (empty: the simulated rig's, shipped with the package)",
                    read_only=True) or default_calibration_path()
     calibration = Calibration.load(path)  # CalibrationError names the problem
     node.get_logger().info(f"calibration {describe(calibration, path)}")
-    return calibration
+    return calibration, path
 
 
 def describe(calibration: Calibration, source: str) -> str:

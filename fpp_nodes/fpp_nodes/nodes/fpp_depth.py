@@ -28,13 +28,13 @@ class FppDepth(Node):
     def __init__(self, **kwargs):
         super().__init__("fpp_depth", **kwargs)
         self.health = Health(self)
-        calibration = load_calibration(self)
+        calibration, source = load_calibration(self)
         self.limits = QualityLimits(
             min_modulation=declare(self, "min_modulation", QualityLimits.min_modulation,
                                    "least fringe modulation kept, fraction of full scale", True),
             max_depth_step_mm=declare(self, "max_depth_step_mm", QualityLimits.max_depth_step_mm,
                                       "largest depth step between neighbours kept (flying pixels), mm", True))
-        self._use(calibration)
+        self._use(calibration, source)
         follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
         self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
         self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
@@ -42,7 +42,7 @@ class FppDepth(Node):
         self.quality_pub = self.create_publisher(Image, Topics.QUALITY, Qos.LARGE)
         self.create_subscription(Image, Topics.SEQUENCE, self._on_sequence, Qos.LARGE)
 
-    def _use(self, calibration, source="parameter calibration"):
+    def _use(self, calibration, source):
         self.calibration = calibration
         self.health.facts["calibration"] = describe(calibration, source)
         self.reconstruct = PspReconstructor(calibration, self.limits)

@@ -28,7 +28,7 @@ class Record(Node):
         output = declare(self, "output", time.strftime("bags/fpp_%Y%m%d_%H%M%S"), "bag folder to create", True)
         storage = declare(self, "storage", "mcap", "mcap or sqlite3", True)
         outputs = declare(self, "outputs", False, "also record points, depth/image, depth/camera_info (to look at)", True)
-        calibration = load_calibration(self)
+        calibration, _ = load_calibration(self)
         self.writer = BagWriter(output, storage)
         self.writer.write_calibration(calibration.to_yaml(), time.time_ns())
         self.counts = {}
