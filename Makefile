@@ -8,7 +8,7 @@ WS_STAMP := ros_ws/install/.built
 BENCH_VENV := .venv-opencv
 BENCH_STAMP := $(BENCH_VENV)/.installed
 
-.PHONY: setup demo offline-demo test bench bench-stream bench-cnn default-model constraints clean
+.PHONY: setup demo offline-demo test bench bench-stream bench-cnn default-model table1 constraints clean
 
 setup: $(STAMP) $(WS_STAMP)
 
@@ -52,6 +52,12 @@ bench-stream: setup
 bench-cnn: setup
 	bash -c 'source scripts/env.bash && python scripts/bench_cnn.py'
 
+# The composed sensor (both paths) at 30 frames/s for SOAK_MINUTES: drops, latency, memory growth.
+SOAK_MINUTES ?= 10
+.PHONY: soak
+soak: setup
+	bash -c 'source scripts/env.bash && python scripts/soak.py --minutes $(SOAK_MINUTES)'
+
 # The shipped default single-shot model (fpp_nodes/fpp_nodes/data/models/unet.onnx + card): the data
 # set the paper's size, then a small UNet at half resolution, as far as the CPU gets in DEFAULT_EPOCHS.
 DEFAULT_EPOCHS ?= 80
@@ -59,6 +65,30 @@ default-model: setup
 	$(PY) -m training.dataset --out data/fpp --set single
 	$(PY) -m training.train --data data/fpp/single --arch unet --width 8 --epochs $(DEFAULT_EPOCHS) --out runs/default-unet
 	$(PY) -m training.export runs/default-unet/best.pt --out fpp_nodes/fpp_nodes/data/models/unet.onnx
+
+# The paper's Table 1 for our data: FCN and AEN beside the default UNet on the single-object set,
+# then a UNet trained on the multi-object set and evaluated there (fringe-order errors, FTP).
+TABLE_EPOCHS ?= 25
+MULTI_EPOCHS ?= 40
+table1: setup
+	$(PY) -m training.dataset --out data/fpp
+	$(PY) -m training.train --data data/fpp/multi --arch unet --width 8 --epochs $(MULTI_EPOCHS) --out runs/multi-unet
+	$(PY) -m training.train --data data/fpp/single --arch fcn --width 8 --epochs $(TABLE_EPOCHS) --out runs/fcn
+	$(PY) -m training.train --data data/fpp/single --arch aen --width 8 --epochs $(TABLE_EPOCHS) --out runs/aen
+	$(PY) -m training.evaluate --data data/fpp/single runs/fcn/best.pt runs/aen/best.pt runs/default-unet/best.pt
+	$(PY) -m training.evaluate --data data/fpp/multi runs/multi-unet/best.pt
+
+# The README's pictures (docs/pictures/): `fpp` on a held-out sculpture (fpp demo's first scene) with
+# the shipped calibration, then the paper's Figures 2 and 3 from the single-object test set with the
+# networks that exist (the shipped UNet where no run has finished); no data set: no figures.
+FIGURE_MODELS ?= $(or $(wildcard runs/fcn/best.pt runs/aen/best.pt runs/default-unet/best.pt),fpp_nodes/fpp_nodes/data/models/unet.onnx)
+.PHONY: pictures
+pictures: setup
+	rm -rf out/pictures
+	$(VENV)/bin/fpp simulate --scene sculpture --seed 1000 --out out/pictures/scene
+	$(VENV)/bin/fpp reconstruct out/pictures/scene --calibration fpp_nodes/fpp_nodes/data/sim_calibration.yaml --out out/pictures/psp
+	$(PY) -m training.figures --data data/fpp/single --out docs/pictures $(FIGURE_MODELS) \
+	  $(foreach f,depth.png cloud.png profile.png error.png:0.75,--also out/pictures/psp/$(f))
 
 # Re-pin the transitive dependencies after changing requirements.txt.
 constraints: setup
