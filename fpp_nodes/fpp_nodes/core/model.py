@@ -89,10 +89,10 @@ def fringe_mask(image: np.ndarray, min_modulation: float = MIN_MODULATION, windo
     min_modulation of full scale, and no pixel near it is saturated (clipped fringes). A network
     answers everywhere; this keeps it from answering in shadows, in the dark and in glare."""
     scale = float(np.iinfo(image.dtype).max) if np.issubdtype(image.dtype, np.integer) else 1.0
-    x = image.astype(np.float32) * np.float32(1.0 / scale)
-    mean = cv2.blur(x, (window, window))
-    variance = cv2.blur(x * x, (window, window)) - mean * mean
-    ok = variance >= 0.5 * min_modulation ** 2
+    mean = cv2.boxFilter(image, cv2.CV_32F, (window, window))
+    variance = cv2.sqrBoxFilter(image, cv2.CV_32F, (window, window))
+    variance -= cv2.multiply(mean, mean)
+    ok = variance >= 0.5 * (min_modulation * scale) ** 2
     saturated = (image >= scale).astype(np.uint8)
     if saturated.any():
         ok &= cv2.dilate(saturated, np.ones((window, window), np.uint8)) == 0
