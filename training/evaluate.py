@@ -20,7 +20,7 @@ import torch
 import yaml
 
 from fpp_nodes.core.calibration import Calibration
-from fpp_nodes.core.model import fringe_mask
+from fpp_nodes.core.model import trusted_single_shot
 from fpp_nodes.core.reconstruct import reconstruct_ftp
 
 from .dataset import load_sample, split_files
@@ -30,8 +30,8 @@ from .train import load_checkpoint, model_from_checkpoint
 
 @torch.no_grad()
 def predict_full(model, image: np.ndarray, downsample: int) -> np.ndarray:
-    """What cnn_depth does: scale to [0, 1], shrink, pad to the stride, run, crop, grow back, mask
-    pixels without usable fringes."""
+    """What cnn_depth does: scale to [0, 1], shrink, pad to the stride, run, crop, grow back, keep
+    only the pixels to trust."""
     h, w = image.shape
     x = image.astype(np.float32) / np.iinfo(image.dtype).max
     if downsample > 1:
@@ -39,8 +39,7 @@ def predict_full(model, image: np.ndarray, downsample: int) -> np.ndarray:
     padded, (ph, pw) = pad_to_stride(torch.from_numpy(x)[None, None])
     depth = model(padded)[0, 0, :ph, :pw].numpy()
     depth = cv2.resize(depth, (w, h), interpolation=cv2.INTER_LINEAR) if downsample > 1 else depth
-    depth[~fringe_mask(image)] = np.nan
-    return depth
+    return trusted_single_shot(depth, image)
 
 
 class Errors:
