@@ -145,7 +145,7 @@ def test_cnn_depth_node(trained, tmp_path, ros_graph):
     assert robot.spin_until(lambda: depth and clouds, 30), procs.logs()
     d = image_to_numpy(depth[0])
     assert d.shape == (480, 640) and 1.0 < np.nanmedian(d) < 1.4 and clouds[0].height == 480
-    assert "image ignored" in procs.logs()
+    assert "image rejected: the model takes 640x480 images" in procs.logs()
     (tmp_path / "bad.onnx").write_bytes(b"not a model")
     bad = procs.run("cnn_depth", "-p", f"model:={tmp_path / 'bad.onnx'}")
     assert bad.wait(timeout=60) == 2
