@@ -4,7 +4,7 @@ on the same model in the same run (the node's overhead is the difference).
     source scripts/env.bash && python scripts/bench_cnn.py [--model PATH] [--seconds 20]
 
 Rows: the bare session on the network's input (1 x 1 x 256 x 320 for the default, half resolution);
-DepthModel (what the node calls: scale, shrink, pad, run, grow back); the node in its own process, fed
+DepthModel (what the node calls: scale, shrink, pad, run, grow back, mask untrusted pixels); the node in its own process, fed
 by this script as fast as it takes frames (it keeps only the newest), timed from each frame's stamp to
 its depth image arriving here.
 """
@@ -87,7 +87,7 @@ def main():
     print(f"{'':44} {'ms p50':>7} {'ms p95':>7} {'frames/s':>9}")
     print(f"{'bare onnxruntime session (' + 'x'.join(map(str, x.shape[2:][::-1])) + ')':44} "
           f"{np.median(bare):7.1f} {np.percentile(bare, 95):7.1f} {1000 / np.median(bare):9.1f}")
-    print(f"{'DepthModel (scale, shrink, pad, run, grow)':44} {np.median(full):7.1f} {np.percentile(full, 95):7.1f} "
+    print(f"{'DepthModel (+ grow back, mask untrusted)':44} {np.median(full):7.1f} {np.percentile(full, 95):7.1f} "
           f"{1000 / np.median(full):9.1f}")
     print(f"{'cnn_depth node, stamp to depth here':44} {np.median(lat):7.1f} {np.percentile(lat, 95):7.1f} "
           f"{len(lat) / elapsed:9.1f}")

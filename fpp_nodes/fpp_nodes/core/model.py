@@ -89,8 +89,8 @@ def trusted_single_shot(depth: np.ndarray, image: np.ndarray,
                         max_depth_step_mm: float = QualityLimits.max_depth_step_mm) -> np.ndarray:
     """Set a network's depth to NaN (in place) where the image shows no usable fringes, and where it
     smears a depth edge: a pixel whose depth differs from a neighbour's by more than max_depth_step_mm,
-    the multi-shot path's flying-pixel rule. On the multi-object test set 98% of the pixels a network
-    got wrong by half a fringe order or more lay within 3 px of an edge; this rule removes them."""
+    the multi-shot path's flying-pixel rule. A network smooths a depth step across a few pixels; on
+    the multi-object test set the rule took its half-order errors from 0.29% to 0.007% of pixels."""
     depth[~fringe_mask(image)] = np.nan
     depth[~drop_flying_pixels(depth, max_depth_step_mm)] = np.nan
     return depth
