@@ -24,7 +24,6 @@ from fpp_msgs_py import ImageError, Qos, Topics, camera_info, image_to_numpy, nu
 from ..core.calibration import back_project
 from ..core.model import DepthModel, ModelError, default_model_path
 from .common import declare, describe, load_calibration, run
-from .fpp_depth import FEW_FRINGES
 from .health import Health
 
 NEWEST_ONLY = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
@@ -80,11 +79,7 @@ class CnnDepth(Node):
         self.info_pub.publish(self.info)
         self.health.count("depth out")
         self.health.latency(time.perf_counter() - start)
-        shown = np.count_nonzero(np.isfinite(depth_mm)) / depth_mm.size
-        self.health.facts["pixels with fringes (last)"] = f"{shown:.1%}"
-        if shown < FEW_FRINGES:
-            self.health.report("frames without fringes", f"only {shown:.2%} of pixels show usable fringes "
-                                                         "(dark, saturated or out of focus?)")
+        self.health.usable_pixels(np.count_nonzero(np.isfinite(depth_mm)) / depth_mm.size, "frames without fringes")
 
 
 def main(args=None):

@@ -20,9 +20,6 @@ from ..core.reconstruct import PspReconstructor, QualityLimits
 from .common import declare, describe, follow_calibration, load_calibration, run
 from .health import Health
 
-# Below this share of trusted pixels a sequence shows (almost) no fringes: said on /diagnostics.
-FEW_FRINGES = 0.01
-
 
 class FppDepth(Node):
     def __init__(self, **kwargs):
@@ -81,11 +78,7 @@ class FppDepth(Node):
         self.info_pub.publish(self.info)
         self.health.count("depth out")
         self.health.latency(time.perf_counter() - start)
-        trusted = np.count_nonzero(rec.valid) / rec.valid.size
-        self.health.facts["trusted pixels (last)"] = f"{trusted:.1%}"
-        if trusted < FEW_FRINGES:  # published all the same: a robot should see nothing rather than old data
-            self.health.report("sequences without fringes", f"only {trusted:.2%} of pixels show usable fringes "
-                                                           "(dark, saturated or out of focus?)")
+        self.health.usable_pixels(np.count_nonzero(rec.valid) / rec.valid.size, "sequences without fringes")
 
 
 def main(args=None):

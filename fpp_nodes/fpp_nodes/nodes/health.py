@@ -18,6 +18,7 @@ from rclpy.node import Node
 
 TOPIC = "/diagnostics"  # absolute: the aggregator and rqt_robot_monitor listen there
 HARDWARE_ID = "fpp_sensor"
+FEW_USABLE = 0.01  # below this share of usable pixels an output shows (almost) no fringes
 
 
 class Health:
@@ -49,6 +50,13 @@ class Health:
         if now - self.logged.get(wording, -1e9) >= 5.0:  # each kind of problem at most every 5 s
             self.logged[wording] = now
             self.node.get_logger().warn(message)
+
+    def usable_pixels(self, share: float, key: str) -> None:
+        """Note the share of pixels an output could use; (almost) none is a problem counted under key.
+        The output goes out all the same: a robot should see nothing rather than old data."""
+        self.facts["usable pixels (last)"] = f"{share:.1%}"
+        if share < FEW_USABLE:
+            self.report(key, f"only {share:.2%} of pixels show usable fringes (dark, saturated or out of focus?)")
 
     def status(self) -> DiagnosticStatus:
         now = time.monotonic()
