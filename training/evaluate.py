@@ -22,6 +22,7 @@ import yaml
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.model import trusted_single_shot
 from fpp_nodes.core.reconstruct import reconstruct_ftp
+from fpp_nodes.core.workflow import fringe_depth_mm
 
 from .dataset import load_sample, split_files
 from .models import pad_to_stride
@@ -93,8 +94,7 @@ def main(argv=None):
             preds = {name: predict_full(model, image, ds) for name, model, ds, *_ in models}
             preds["FTP"] = reconstruct_ftp(image, calibration).depth_mm
             preds["multi-shot"] = label
-            phase = calibration.model.phase_at_depth(truth, u, v)
-            half_fringe = np.abs(calibration.model.depth_per_radian(phase, u, v)) * np.pi
+            half_fringe = fringe_depth_mm(calibration, calibration.model.phase_at_depth(truth, u, v)) / 2
             for c in columns:
                 errs[c][0].add(preds[c], label)
                 errs[c][1].add(preds[c], truth, half_fringe)

@@ -27,7 +27,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, Dataset, DistributedSampler
 from tqdm import tqdm
 
-from fpp_nodes.core import io
+from fpp_nodes.core.pictures import depth_colours
 
 from .dataset import load_sample, split_files
 from .models import ARCHITECTURES, build, pad_to_stride
@@ -245,7 +245,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
         with torch.no_grad():
             shown = predict(net, showcase[0][None].to(device))[0, 0].cpu().numpy()
         cv2.imwrite(str(out / "epochs" / f"epoch_{epoch:04d}.png"),
-                    np.hstack([io.depth_picture(showcase[1][0].numpy()), io.depth_picture(shown)]))
+                    np.hstack([depth_colours(showcase[1][0].numpy()), depth_colours(shown)]))
         save_checkpoint(out / "last.pt", model, optimizer, scheduler, config, epoch, history, seconds)
         if val_loss < best:
             best = val_loss

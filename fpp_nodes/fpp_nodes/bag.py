@@ -3,8 +3,9 @@
 A bag holds the raw stream (projector/pattern, camera/image_raw, camera/camera_info) as the CDR
 bytes that crossed DDS, and the calibration as a std_msgs/String on fpp/calibration, so that a
 replay reconstructs without the original parameters; optionally also the sensor's outputs (points,
-depth/image, depth/camera_info), to look at; a replay leaves those out and makes them anew. MCAP by default (it opens in Foxglove), sqlite3
-on request; message definitions are stored, so the stock `ros2 bag` reads both.
+depth/image, depth/camera_info), to look at; a replay leaves those out and makes them anew. MCAP by
+default (it opens in Foxglove), sqlite3 on request; message definitions are stored, so the stock
+`ros2 bag` reads both.
 """
 from __future__ import annotations
 

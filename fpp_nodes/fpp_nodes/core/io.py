@@ -6,7 +6,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .pictures import depth_colours
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
 
@@ -82,12 +81,6 @@ def read_depth(path) -> np.ndarray:
 def write_depth(folder, name: str, depth_mm: np.ndarray) -> None:
     np.save(Path(folder) / f"{name}.npy", depth_mm.astype(np.float32))
     cv2.imwrite(str(Path(folder) / f"{name}.tiff"), depth_mm.astype(np.float32))
-
-
-def depth_picture(depth_mm: np.ndarray, near: float | None = None, far: float | None = None) -> np.ndarray:
-    """Colour-mapped depth (turbo, near = red) without a scale bar, as BGR uint8; invalid pixels grey.
-    pictures.depth_picture adds the scale bar."""
-    return depth_colours(depth_mm, near, far)
 
 
 def write_ply(path, xyz: np.ndarray, grey: np.ndarray | None = None) -> int:

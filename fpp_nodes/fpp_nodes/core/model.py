@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import yaml
 
-from .reconstruct import QualityLimits, drop_flying_pixels
+from .reconstruct import QualityLimits, drop_flying_pixels, full_scale
 
 STRIDE = 32
 # Local fringe contrast is measured over one fringe period of the default rig's highest frequency
@@ -101,7 +101,7 @@ def fringe_mask(image: np.ndarray, min_modulation: float = MIN_MODULATION, windo
     (sqrt(2) x the standard deviation over the window, the amplitude of a sinusoid) is at least
     min_modulation of full scale, and no pixel near it is saturated (clipped fringes). A network
     answers everywhere; this keeps it from answering in shadows, in the dark and in glare."""
-    scale = float(np.iinfo(image.dtype).max) if np.issubdtype(image.dtype, np.integer) else 1.0
+    scale = full_scale(image.dtype)
     mean = cv2.boxFilter(image, cv2.CV_32F, (window, window))
     variance = cv2.sqrBoxFilter(image, cv2.CV_32F, (window, window))
     variance -= cv2.multiply(mean, mean)

@@ -40,7 +40,8 @@ class CnnDepth(Node):
         self.health = Health(self)
         self.calibration, source = load_calibration(self)
         self.health.facts["calibration"] = describe(self.calibration, source)
-        self.model = DepthModel(path or default_model_path(), providers, threads)
+        path = path or default_model_path()
+        self.model = DepthModel(path, providers, threads)
         cam = self.calibration.camera
         if (cam.width, cam.height) != self.model.size:
             raise ModelError(f"the model was trained for {self.model.size[0]}x{self.model.size[1]} images, "
@@ -51,10 +52,10 @@ class CnnDepth(Node):
         self.points_pub = self.create_publisher(PointCloud2, Topics.POINTS, Qos.LARGE)
         self.create_subscription(Image, Topics.CAMERA_IMAGE, self._on_image, NEWEST_ONLY)
         card = self.model.card
-        self.health.facts.update({"model": path or default_model_path(), "model sha256": card["sha256"][:12],
+        self.health.facts.update({"model": path, "model sha256": card["sha256"][:12],
                                   "architecture": str(card.get("architecture")),
                                   "providers": ", ".join(self.model.providers)})
-        self.get_logger().info(f"model {path or default_model_path()} ({card.get('architecture')}), "
+        self.get_logger().info(f"model {path} ({card.get('architecture')}), "
                                f"providers {self.model.providers}")
 
     def _on_image(self, msg: Image):

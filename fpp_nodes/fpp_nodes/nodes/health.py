@@ -72,7 +72,7 @@ class Health:
         self.window.clear()
         self.problems.clear()
         self.since = now
-        return DiagnosticStatus(level=level, name=f"{self.node.get_fully_qualified_name()}", message=message,
+        return DiagnosticStatus(level=level, name=self.node.get_fully_qualified_name(), message=message,
                                 hardware_id=HARDWARE_ID, values=[KeyValue(key=k, value=v) for k, v in values.items()])
 
     def publish(self) -> None:
