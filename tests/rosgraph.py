@@ -99,6 +99,13 @@ class Diagnostics:
             self.latest[status.name] = status
             self.said.setdefault(status.name, []).append(status.message)
 
-    def value(self, node: str, key: str, default="0") -> str:
+    def value(self, node: str, key: str, default="0") -> str | None:
+        """The node's newest value for key (default where its report has no such key: a counter that
+        never counted); None while the node has not reported at all."""
         status = self.latest.get(node)
-        return next((kv.value for kv in status.values if kv.key == key), default) if status else default
+        return next((kv.value for kv in status.values if kv.key == key), default) if status else None
+
+    def counter(self, node: str, key: str) -> int:
+        """A counter's newest total, -1 while the node has not reported (so `>= n` waits are honest)."""
+        value = self.value(node, key)
+        return -1 if value is None else int(value)

@@ -21,10 +21,11 @@ def results(rig, patterns, calibration):
     return rows
 
 
-def test_multi_shot_is_within_twice_the_noise_limit(results):
+def test_multi_shot_is_at_the_noise_limit(results):
+    """The README's claim: 1.03-1.10x the noise limit, about 0.024 mm, on these held-out scenes."""
     for r, _, _ in results:
-        assert r.errors.rmse_mm <= 2.0 * r.noise_limited_rmse_mm, r
-        assert r.errors.rmse_mm < 0.06
+        assert r.errors.rmse_mm <= 1.15 * r.noise_limited_rmse_mm, r
+        assert r.errors.rmse_mm < 0.03
 
 
 def test_no_fringe_order_errors_and_shadows_are_all_that_is_lost(results, calibration):
@@ -35,7 +36,7 @@ def test_no_fringe_order_errors_and_shadows_are_all_that_is_lost(results, calibr
     assert tallest_step > 2 * one_fringe  # the scenes do test temporal unwrapping
     for r, _, capture in results:
         assert r.errors.order_errors == 0, r
-        assert r.errors.coverage > 0.98, r  # of the lit pixels; the rest sit on edges (flying-pixel filter)
+        assert r.errors.coverage > 0.99, r  # of the lit pixels; the rest sit on edges (flying-pixel filter)
 
 
 def test_no_wrong_depth_is_reported_in_shadows(results, rig, patterns, calibration):
@@ -62,3 +63,16 @@ def test_ftp_baseline_is_reported_and_fails_where_it_must(results, rig, patterns
     # ... on scenes with steps taller than a fringe, spatial unwrapping loses the order
     for r, ftp, _ in results:
         assert ftp.order_errors > 0 and ftp.rmse_mm > 10 * r.errors.rmse_mm
+
+
+@pytest.mark.parametrize("seed", [1000, 1002])
+def test_the_shipped_single_shot_model_on_fresh_scenes_of_its_family(rig, patterns, seed):
+    """The README's figures for the shipped model (0.43-0.53 mm against the exact depth on sculptures it
+    never saw, about 99% of lit pixels covered), on freshly rendered held-out scenes (training seeds
+    start at 100000)."""
+    from fpp_nodes.core.model import DepthModel, default_model_path
+    from fpp_nodes.core.simulation import make_scene
+    capture = render(rig, make_scene(rig, "sculpture", seed), patterns, np.random.default_rng(seed))
+    depth = DepthModel(default_model_path())(capture.images[patterns.single_shot_index])
+    errors = depth_errors(depth, capture.depth_mm, capture.valid)
+    assert errors.rmse_mm < 0.5 and errors.coverage > 0.99, errors

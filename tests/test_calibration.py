@@ -98,11 +98,18 @@ def test_back_projection_follows_the_optical_frame(calibration):
     assert xyz[240, 639, 0] > 0 and xyz[479, 320, 1] > 0  # x right, y down
 
 
-def test_the_shipped_calibration_is_what_fpp_demo_makes(rig, patterns):
+def test_the_shipped_calibration_is_what_fpp_demo_makes(rig, patterns, pixel_grid):
+    """The shipped file is the seed-0 fit. Coefficients of a least-squares fit move with the BLAS build
+    (small terms by 0.2% relative), so compare what matters: the depth both give over the working
+    volume, to 1e-4 mm (240x under the sensor's 0.024 mm noise). Another noise seed moves it 1.2e-3 mm."""
     from fpp_nodes.core.calibration import default_calibration_path
     from fpp_nodes.core.workflow import simulated_calibration
     shipped = Calibration.load(default_calibration_path())
     made, _ = simulated_calibration(rig, patterns, seed=0)
     assert shipped.patterns == made.patterns and shipped.camera == made.camera
-    np.testing.assert_allclose(shipped.model.c, made.model.c, rtol=1e-9, atol=1e-15)
-    np.testing.assert_allclose(shipped.model.d, made.model.d, rtol=1e-9, atol=1e-15)
+    true = rig.true_model(patterns)
+    u, v = pixel_grid((rig.height, rig.width))
+    for z in np.linspace(1050.0, 1350.0, 7):
+        phase = true.phase_at_depth(z, u, v)
+        difference = made.model.depth(phase, u, v) - shipped.model.depth(phase, u, v)
+        assert np.abs(difference).max() < 1e-4, (z, np.abs(difference).max())

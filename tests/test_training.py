@@ -138,11 +138,13 @@ def test_cnn_depth_node(trained, tmp_path, ros_graph):
     pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
     assert robot.spin_until(lambda: pub.get_subscription_count() > 0, 30)
     image, _, _ = load_sample(split_files(trained[1].data, "test")[0])
-    for bad in (np.zeros((240, 320), np.uint8), np.zeros((480, 640), np.float32)):
+    for bad, said in ((np.zeros((240, 320), np.uint8), "the model takes 640x480 images"),
+                      (np.zeros((480, 640), np.float32), "mono8 or mono16")):
         pub.publish(numpy_to_image(bad, Header(frame_id="camera_optical_frame")))
-        robot.spin_until(lambda: False, 0.5)  # one at a time: the node keeps only the newest frame
+        # one at a time: the node keeps only the newest frame
+        assert robot.spin_until(lambda: said in procs.logs(), 60), procs.logs()
     pub.publish(numpy_to_image(image, Header(frame_id="camera_optical_frame")))
-    assert robot.spin_until(lambda: depth and clouds, 30), procs.logs()
+    assert robot.spin_until(lambda: depth and clouds, 60), procs.logs()
     d = image_to_numpy(depth[0])
     assert d.shape == (480, 640) and 1.0 < np.nanmedian(d) < 1.4 and clouds[0].height == 480
     assert "image rejected: the model takes 640x480 images" in procs.logs()
@@ -176,6 +178,6 @@ def test_a_data_set_from_a_recorded_bag(tmp_path):
     writer.close()
     assert write_bag_set(tmp_path / "bag", tmp_path / "set") == 1
     image, label, truth = load_sample(split_files(tmp_path / "set", "train")[0])
-    np.testing.assert_array_equal(image, capture.images[12])
+    np.testing.assert_array_equal(image, capture.images[patterns.single_shot_index])
     ok = np.isfinite(label) & capture.valid
     assert not np.isfinite(truth).any() and np.sqrt(np.mean((label - capture.depth_mm)[ok] ** 2)) < 0.06
