@@ -74,7 +74,7 @@ def make_sample(kind: str, seed: int) -> dict:
     capture = render(rig, make_scene(rig, kind, seed), patterns, np.random.default_rng(seed))
     label = psp(capture.images).depth_mm
     truth = np.where(capture.valid, capture.depth_mm, np.nan)
-    return {"input": capture.images[(len(patterns.frequencies) - 1) * patterns.steps],
+    return {"input": capture.images[patterns.single_shot_index],
             "label": encode_depth(label), "truth": encode_depth(truth)}
 
 
@@ -146,7 +146,7 @@ def write_bag_set(bag, out, split: str = "train", calibration_path: str | None =
         if sequence is not None:
             label = psp(sequence.images).depth_mm
             np.savez_compressed(folder / f"{sequence.stamps_ns[0]}.npz",
-                                input=sequence.images[(len(patterns.frequencies) - 1) * patterns.steps],
+                                input=sequence.images[patterns.single_shot_index],
                                 label=encode_depth(label), truth=np.zeros(label.shape, np.uint16))
             count += 1
     (Path(out) / "dataset.yaml").write_text(yaml.safe_dump({

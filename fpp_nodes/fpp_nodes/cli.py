@@ -94,7 +94,7 @@ def cmd_calibrate(args) -> None:
 def _reconstruct(images: np.ndarray, calibration: Calibration, method: str, limits: QualityLimits):
     if method == "psp":
         return PspReconstructor(calibration, limits)(images)
-    index = (len(calibration.patterns.frequencies) - 1) * calibration.patterns.steps if len(images) > 1 else 0
+    index = calibration.patterns.single_shot_index if len(images) > 1 else 0
     return reconstruct_ftp(images[index], calibration, limits)
 
 

@@ -17,8 +17,7 @@ from .reconstruct import QualityLimits, drop_flying_pixels, full_scale
 
 STRIDE = 32
 # Local fringe contrast is measured over one fringe period of the default rig's highest frequency
-# (9 camera pixels): on the single-object test images it keeps 99.9% of lit pixels and masks the
-# inside of every shadow; a longer window lets thin shadows through.
+# (9 camera pixels): it masks the inside of every shadow; a longer window lets thin shadows through.
 CONTRAST_WINDOW = 9
 MIN_MODULATION = 0.05  # as the multi-shot path's QualityLimits: a fraction of full scale
 

@@ -49,6 +49,11 @@ class PatternSet:
     def max_value(self) -> int:
         return (1 << self.bit_depth) - 1
 
+    @property
+    def single_shot_index(self) -> int:
+        """Which pattern the single-shot path sees: the first step of the highest frequency (the paper's input)."""
+        return (len(self.frequencies) - 1) * self.steps
+
     def shifts(self) -> np.ndarray:
         """delta_j = 2 pi j / N for j = 0 .. N-1."""
         return 2.0 * np.pi * np.arange(self.steps) / self.steps

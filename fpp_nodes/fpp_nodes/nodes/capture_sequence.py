@@ -113,7 +113,7 @@ class CaptureSequence(Node):
             self.publisher.publish(numpy_to_image(sequence.images.reshape(k * h, w),
                                                   header_at(sequence.stamps_ns[0], msg.header.frame_id)))
         if self.single_publisher.get_subscription_count() > 0:
-            i = (len(self.calibration.patterns.frequencies) - 1) * self.calibration.patterns.steps
+            i = self.calibration.patterns.single_shot_index
             self.single_publisher.publish(numpy_to_image(sequence.images[i],
                                                          header_at(sequence.stamps_ns[i], msg.header.frame_id)))
 
