@@ -75,7 +75,7 @@ table1: setup
 	$(PY) -m training.train --data data/fpp/multi --arch unet --width 8 --epochs $(MULTI_EPOCHS) --out runs/multi-unet
 	$(PY) -m training.train --data data/fpp/single --arch fcn --width 8 --epochs $(TABLE_EPOCHS) --out runs/fcn
 	$(PY) -m training.train --data data/fpp/single --arch aen --width 8 --epochs $(TABLE_EPOCHS) --out runs/aen
-	$(PY) -m training.evaluate --data data/fpp/single runs/fcn/best.pt runs/aen/best.pt runs/default-unet/best.pt
+	$(PY) -m training.evaluate --data data/fpp/single --limit 72 runs/fcn/best.pt runs/aen/best.pt runs/default-unet/best.pt
 	$(PY) -m training.evaluate --data data/fpp/multi --limit 70 runs/multi-unet/best.pt
 
 # The README's pictures (docs/pictures/): `fpp` on a held-out sculpture (fpp demo's first scene) with

@@ -16,6 +16,7 @@ import signal
 import subprocess
 import time
 
+import cv2
 import numpy as np
 import rclpy
 from rclpy.node import Node
@@ -25,6 +26,7 @@ from std_msgs.msg import Header
 from fpp_msgs_py import Qos, Topics, numpy_to_image, stamp_ns
 from fpp_nodes.core.model import DepthModel, default_model_path
 from fpp_nodes.core.simulation import Rig, make_scene, render
+from machine import describe
 
 
 def timed(fn, n):
@@ -82,8 +84,10 @@ def main():
         robot.destroy_node()
         rclpy.try_shutdown()
     lat = np.array(arrivals)
-    print(f"\nmodel {args.model} ({model.card.get('architecture')}, width {model.card.get('width')}, "
-          f"{model.card.get('parameters')} parameters), onnxruntime {args.threads} threads, 640x480 mono8 frames\n")
+    print("\n" + describe({"onnxruntime intra-op (session and node)": args.threads,
+                            "cv2 (DepthModel and node, default)": cv2.getNumThreads()}))
+    print(f"model {args.model} ({model.card.get('architecture')}, width {model.card.get('width')}, "
+          f"{model.card.get('parameters')} parameters), 640x480 mono8 frames\n")
     print(f"{'':44} {'ms p50':>7} {'ms p95':>7} {'frames/s':>9}")
     print(f"{'bare onnxruntime session (' + 'x'.join(map(str, x.shape[2:][::-1])) + ')':44} "
           f"{np.median(bare):7.1f} {np.percentile(bare, 95):7.1f} {1000 / np.median(bare):9.1f}")

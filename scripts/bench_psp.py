@@ -28,6 +28,7 @@ from fpp_nodes.core.metrics import depth_errors  # noqa: E402
 from fpp_nodes.core.reconstruct import PspReconstructor  # noqa: E402
 from fpp_nodes.core.simulation import Rig, make_scene, render  # noqa: E402
 from fpp_nodes.core.workflow import fringe_depth_mm, simulated_calibration  # noqa: E402
+from machine import describe  # noqa: E402  (scripts/, this script's folder)
 
 
 def timed(fn, repeat):
@@ -66,8 +67,8 @@ def main():
     sinus = opencv_psp(rig, patterns.frequencies[-1])
     u = np.arange(rig.width, dtype=np.float64)[None, :]
     v = np.arange(rig.height, dtype=np.float64)[:, None]
-    print(f"cv2 {cv2.__version__}, {cv2.getNumThreads()} threads; numpy {np.__version__}; 640x480; "
-          f"median of {args.repeat} runs\n")
+    print(describe({"cv2 (both methods)": cv2.getNumThreads()}, libs=("numpy", "cv2")))
+    print(f"640x480; median of {args.repeat} runs\n")
     print(f"{'scene':14} {'method':34} {'images':>6} {'ms median':>9} {'ms p90':>7} {'RMSE mm':>8} {'cover':>6} {'orders':>7}")
     for item in args.scenes.split(","):
         kind, seed = item.split(":")

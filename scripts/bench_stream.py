@@ -13,6 +13,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -20,6 +21,7 @@ from sensor_msgs.msg import PointCloud2
 
 from fpp_msgs_py import Topics
 from fpp_nodes.nodes.demo import Robot, per_cloud
+from machine import describe
 from streamkit import NodeProcesses, capture_counts, percentile_header, percentile_row
 
 
@@ -53,7 +55,9 @@ def main():
     counts = capture_counts(procs.log("capture_sequence"))
     frames_in, complete, dropped = counts.frames_in, counts.complete, counts.dropped
     rows = per_cloud(robot)
-    print(f"\n{args.seconds:g} s at {args.rate:g} camera frames/s, 640x480 mono8; 4 nodes in 4 processes + this robot "
+    # the nodes do not set cv2's thread count: each process gets the default this one has
+    print("\n" + describe({"cv2 (each node process, default)": cv2.getNumThreads()}, libs=("numpy", "cv2")))
+    print(f"{args.seconds:g} s at {args.rate:g} camera frames/s, 640x480 mono8; 4 nodes in 4 processes + this robot "
           "(capture_sequence's counts cover its whole run)")
     print(f"{'frames in':>10} {'sequences complete':>18} {'dropped':>7} {'clouds here RELIABLE':>20} "
           f"{'clouds here BEST_EFFORT':>23}")

@@ -29,7 +29,9 @@ catches up), which takes minutes under load. Measured here in three ten-minute r
 end; once +7 MB in minute 4, then -11 MB in minute 7. So the verdict compares the end with the highest sample of the window's first half: a leak keeps growing past
 it, a settled working set does not. Growth above --max-growth-mb fails the run: with the defaults
 (10 MB, 10 minutes), a leak faster than 2 MB/min; a longer run catches slower ones.
-Exit status 0 when both verdicts are OK, 1 otherwise.
+The sensor is stopped with SIGINT at the end; a Traceback in its log or an exit status other than a
+clean shutdown's fails the run.
+Exit status 0 when all three verdicts are OK, 1 otherwise.
 """
 from __future__ import annotations
 
@@ -41,6 +43,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -49,6 +52,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image, PointCloud2
 
 from fpp_msgs_py import Frames, Qos, Topics
+from machine import describe
 from streamkit import NodeProcesses, capture_counts, percentile_header, percentile_row, rss_mb
 
 PERCENTILES = (50, 95, 99)
@@ -162,6 +166,7 @@ def main() -> int:
                         help="largest RSS growth in the window's second half that passes")
     parser.add_argument("--domain", type=int, default=215, help="ROS_DOMAIN_ID (outside the tests' 30-199)")
     parser.add_argument("--scene", default="sculpture")
+    parser.add_argument("--threads", type=int, default=2, help="cnn_depth's onnxruntime intra-op threads")
     args = parser.parse_args()
     logs = Path(tempfile.mkdtemp(prefix="soak_"))
     procs = NodeProcesses(args.domain, logs)
@@ -169,7 +174,8 @@ def main() -> int:
     robot = SoakRobot()
     executor = SingleThreadedExecutor()
     executor.add_node(robot)
-    sensor = procs.start("sensor", "-p", f"rate:={args.rate}", "-p", f"scene:={args.scene}")
+    sensor = procs.start("sensor", "-p", f"rate:={args.rate}", "-p", f"scene:={args.scene}",
+                         "-p", f"threads:={args.threads}")
     rss = []  # (seconds into the window, MB)
     try:
         if not spin_for(executor, 180, lambda: all(robot.outputs.values()) or sensor.poll() is not None) \
@@ -202,7 +208,10 @@ def main() -> int:
 def report(args, acc: dict, rss: list, robot: SoakRobot, log: Path, exit_status: int) -> int:
     bad, counts = robot.bad, capture_counts(log.read_text())
     minutes = args.minutes
-    print(f"\nsoak: composed sensor (multi-shot + single-shot in one process), {args.rate:g} camera frames/s "
+    # the sensor does not set cv2's thread count: it gets the default this process has
+    print("\n" + describe({"onnxruntime intra-op (cnn_depth)": args.threads,
+                            "cv2 (sensor process, default)": cv2.getNumThreads()}))
+    print(f"soak: composed sensor (multi-shot + single-shot in one process), {args.rate:g} camera frames/s "
           f"requested, {minutes:g} min measured after warm-up; 640x480 mono8, {acc['frames_per_sequence']} frames "
           "a sequence")
     print(f"camera frames (patterns shown) {acc['patterns']}: {acc['pattern_rate']:.2f}/s of the {args.rate:g}/s "
@@ -263,9 +272,12 @@ def report(args, acc: dict, rss: list, robot: SoakRobot, log: Path, exit_status:
           f"out: points {acc['cnn points']['lost'] - acc['cnn unprocessed']}, "
           f"depth {acc['cnn depth']['lost'] - acc['cnn unprocessed']}")
     traceback = "Traceback" in log.read_text()
+    # On SIGINT the nodes catch KeyboardInterrupt (ExternalShutdownException), shut down and exit 0
+    # (fpp_nodes/nodes/common.py spin); anything else is a crash, or -9 where SIGKILL ended a hung shutdown.
+    stopped_ok = exit_status == 0 and not traceback
     print(f"sensor stopped with SIGINT, exit status {exit_status}"
-          f"{' (a Traceback is in its log)' if traceback else ''}; log: {log}")
-    return 0 if memory_ok and kept_ok else 1
+          f"{' (a Traceback is in its log)' if traceback else ''}: {'OK' if stopped_ok else 'FAIL'}; log: {log}")
+    return 0 if memory_ok and kept_ok and stopped_ok else 1
 
 
 if __name__ == "__main__":
