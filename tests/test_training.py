@@ -10,7 +10,7 @@ import torch
 import yaml
 
 from fpp_nodes.core.model import DepthModel, ModelError
-from training.dataset import decode_depth, encode_depth, load_sample, split_files, write_set
+from training.dataset import decode_depth, encode_depth, load_phase_targets, load_sample, split_files, write_set
 from training.export import export
 from training.models import build, layer_counts, pad_to_stride
 from training.train import TrainConfig, load_checkpoint, train
@@ -181,3 +181,23 @@ def test_a_data_set_from_a_recorded_bag(tmp_path):
     np.testing.assert_array_equal(image, capture.images[patterns.single_shot_index])
     ok = np.isfinite(label) & capture.valid
     assert not np.isfinite(truth).any() and np.sqrt(np.mean((label - capture.depth_mm)[ok] ** 2)) < 0.06
+
+
+def test_the_phase_aware_network_trains_exports_and_runs(tmp_path):
+    """A families set with phase targets, one epoch of the phase-aware network, export with a threshold
+    chosen on the validation split, onnxruntime inference with a confidence, and the per-family table."""
+    data = write_set(tmp_path / "data", "families", counts=(2, 1, 2), workers=1)
+    fringe, phase, family = load_phase_targets(split_files(data, "train")[0])
+    assert fringe.shape == (2, 480, 640) and np.isfinite(phase).mean() > 0.3 and family == "bust"
+    train(TrainConfig(data=str(data), out=str(tmp_path / "run"), arch="phase", width=4, downsample=1, epochs=1))
+    card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m.onnx"))
+    assert card["output"]["name"] == "fringe_order" and "val" in card["decoding"]["chosen_on"]
+    assert card["calibration"]["camera"]["width"] == 640
+    depth, confidence = DepthModel(tmp_path / "m.onnx", threads=1).infer(load_sample(split_files(data, "test")[0])[0])
+    assert depth.shape == confidence.shape == (480, 640) and np.all((confidence >= 0) & (confidence <= 1))
+    assert np.all(np.isnan(depth[confidence < card["decoding"]["min_confidence"]]))
+    r = subprocess.run([sys.executable, "-m", "training.evaluate", "--data", str(data), "--families", str(tmp_path / "m.onnx")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and "bust" in r.stdout and "freeform" in r.stdout, r.stderr[-2000:]
+    with pytest.raises(ValueError, match="downsample 1"):
+        TrainConfig(arch="phase", downsample=2)

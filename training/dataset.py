@@ -27,12 +27,18 @@ import yaml
 from tqdm import tqdm
 
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
-from fpp_nodes.core.reconstruct import PspReconstructor
-from fpp_nodes.core.simulation import Rig, make_scene, render
+from fpp_nodes.core.phase import sin_cos_sums
+from fpp_nodes.core.reconstruct import PspReconstructor, full_scale
+from fpp_nodes.core.simulation import Rig, make_scene, random_rig, render
 
 SPLITS = ("train", "val", "test")
 # set name -> (scene kind, paper's counts, first seed); seeds never overlap between sets or splits
-SETS = {"single": ("sculpture", (540, 60, 72), 100_000), "multi": ("objects", (630, 70, 40), 200_000)}
+SETS = {"single": ("sculpture", (540, 60, 72), 100_000), "multi": ("objects", (630, 70, 40), 200_000),
+        "families": ("families", (1000, 120, 180), 300_000)}
+# The families set: training and validation see these families; the test split sees every family, so
+# the held-out ones (never in training, validation or any design choice) measure generalisation.
+TRAIN_FAMILIES = ("bust", "freeform", "blocks", "planes", "floating")
+HELD_OUT_FAMILIES = ("spheres", "thin", "objects")
 DEPTH_OFFSET_MM, DEPTH_STEP_MM = 1000.0, 0.01
 FORMAT_VERSION = 1
 
@@ -56,6 +62,15 @@ def load_sample(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return z["input"], decode_depth(z["label"]), decode_depth(z["truth"])
 
 
+def load_phase_targets(path) -> tuple[np.ndarray, np.ndarray, str]:
+    """(fringe numerator/denominator float32 (2, H, W), absolute phase float32 NaN-invalid, family)
+    of a families-set sample."""
+    with np.load(path, allow_pickle=False) as z:
+        if "phase" not in z:
+            raise ValueError(f"{path} has no phase targets (make a families set: --set families)")
+        return z["fringe"].astype(np.float32), z["phase"], str(z["family"])
+
+
 def seed_of(set_name: str, split: str, i: int) -> int:
     return SETS[set_name][2] + 10_000 * SPLITS.index(split) + i
 
@@ -68,19 +83,38 @@ def _init(calibration_path: str):
     _worker.update(rig=rig, patterns=rig.pattern_set(), psp=PspReconstructor(Calibration.load(calibration_path)))
 
 
-def make_sample(kind: str, seed: int) -> dict:
-    """Render one scene, reconstruct it with the multi-shot path, keep the first 100-fringe image."""
+def family_of(split: str, i: int) -> str:
+    families = TRAIN_FAMILIES if split != "test" else TRAIN_FAMILIES + HELD_OUT_FAMILIES
+    return families[i % len(families)]
+
+
+def make_sample(kind: str, seed: int, families: bool = False) -> dict:
+    """Render one scene, reconstruct it with the multi-shot path, keep the first 100-fringe image.
+
+    For the families set (families=True) the scene is rendered with random photometry (random_rig),
+    and the sample also keeps its family and the multi-shot phase: `phase`, the absolute phase of the highest frequency (float32, NaN
+    where untrusted), and `fringe`, its numerator and denominator (B sin phi, B cos phi over full
+    scale, float16), the phase-aware network's targets."""
     rig, patterns, psp = _worker["rig"], _worker["patterns"], _worker["psp"]
+    if families:
+        rig = random_rig(np.random.default_rng([seed, 1]), rig)
     capture = render(rig, make_scene(rig, kind, seed), patterns, np.random.default_rng(seed))
-    label = psp(capture.images).depth_mm
+    rec = psp(capture.images)
     truth = np.where(capture.valid, capture.depth_mm, np.nan)
-    return {"input": capture.images[patterns.single_shot_index],
-            "label": encode_depth(label), "truth": encode_depth(truth)}
+    sample = {"input": capture.images[patterns.single_shot_index],
+              "label": encode_depth(rec.depth_mm), "truth": encode_depth(truth)}
+    if families:
+        top = capture.images[-patterns.steps:]
+        s, c = sin_cos_sums(top)
+        scale = 2.0 / (patterns.steps * full_scale(top.dtype))
+        sample.update(phase=np.where(np.isfinite(rec.depth_mm), rec.phase, np.nan).astype(np.float32),
+                      fringe=np.stack([-s * scale, c * scale]).astype(np.float16), family=kind)
+    return sample
 
 
 def _write(job):
-    kind, seed, path = job
-    np.savez_compressed(path, **make_sample(kind, seed))
+    kind, seed, path, families = job
+    np.savez_compressed(path, **make_sample(kind, seed, families))
     return path
 
 
@@ -96,10 +130,13 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
         for i in range(n):
             path = folder / split / f"{seed_of(set_name, split, i)}.npz"
             if not path.exists():
-                jobs.append((kind, seed_of(set_name, split, i), path))
+                families = kind == "families"
+                jobs.append((family_of(split, i) if families else kind, seed_of(set_name, split, i), path, families))
     rig = Rig()
     (folder / "dataset.yaml").write_text(yaml.safe_dump({
         "format": "fpp_dataset", "version": FORMAT_VERSION, "set": set_name, "scene": kind,
+        **({"train_families": list(TRAIN_FAMILIES), "held_out_families": list(HELD_OUT_FAMILIES)}
+           if kind == "families" else {}),
         "counts": dict(zip(SPLITS, counts)), "first_seeds": {s: seed_of(set_name, s, 0) for s in SPLITS},
         "input": "first image of the highest frequency", "label": "multi-shot PSP depth",
         "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},

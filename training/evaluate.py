@@ -8,6 +8,7 @@ exact depth by more than half the depth one fringe period of the highest frequen
 6 mm at the default rig), the errors a wrong fringe order makes.
 
     python -m training.evaluate --data data/fpp/single runs/fcn/best.pt runs/aen/best.pt runs/unet/best.pt
+    python -m training.evaluate --data data/fpp/families --families runs/phase/model.onnx unet.onnx
 """
 from __future__ import annotations
 
@@ -70,13 +71,55 @@ class Errors:
         return self.rel / max(self.n, 1)
 
 
+SILENT_ERROR_MM = 1.0
+
+
+def family_table(data: str, model_paths, split: str = "test", limit: int = 0) -> None:
+    """Generalisation by scene family, on the split's samples (the families set's test split holds the
+    held-out families too): RMSE against the exact depth, silent errors (the share of output pixels off
+    it by more than SILENT_ERROR_MM) and coverage (the share of lit pixels given a depth)."""
+    from .figures import load_models
+    models = load_models(model_paths)
+    info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
+    held_out = set(info.get("held_out_families", []))
+    stats = {}  # (family, model) -> [squared error, output pixels, silent errors, lit pixels]
+    for f in split_files(data, split)[: limit or None]:
+        with np.load(f, allow_pickle=False) as z:
+            family = str(z["family"]) if "family" in z else info.get("scene", "?")
+        image, _, truth = load_sample(f)
+        for name, predict in models:
+            depth = predict(image)
+            ok = np.isfinite(depth) & np.isfinite(truth)
+            d = depth[ok].astype(np.float64) - truth[ok]
+            acc = stats.setdefault((family, name), np.zeros(4))
+            acc += (float(d @ d), d.size, int((np.abs(d) > SILENT_ERROR_MM).sum()), int(np.isfinite(truth).sum()))
+    names = [n for n, _ in models]
+    families = sorted({f for f, _ in stats}, key=lambda f: (f in held_out, f))
+    print(f"{split} split of {data}, by scene family (* held out of training and validation)")
+    print(f"{'family':14}" + "".join(f"{n[:24]:>26}" for n in names))
+    print(f"{'':14}" + "".join(f"{'RMSE mm  >1mm   cover':>26}" for _ in names))
+    for family in families:
+        cells = []
+        for n in names:
+            sq, out, silent, lit = stats[(family, n)]
+            cells.append(f"{np.sqrt(sq / max(out, 1)):8.3f} {silent / max(out, 1):6.2%} {out / max(lit, 1):7.1%}")
+        print(f"{family + (' *' if family in held_out else ''):14}" + "".join(f"{c:>26}" for c in cells))
+    print(f"RMSE against the exact depth over the pixels given a depth; >1mm: share of those off by more than "
+          f"{SILENT_ERROR_MM:g} mm (silent errors); cover: share of lit pixels given a depth")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m training.evaluate", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("checkpoints", nargs="*")
     parser.add_argument("--data", required=True)
     parser.add_argument("--limit", type=int, default=0, help="at most N samples per split (0: all)")
+    parser.add_argument("--families", action="store_true",
+                        help="the per-family table of the test split instead (checkpoints or .onnx models)")
     args = parser.parse_args(argv)
+    if args.families:
+        family_table(args.data, args.checkpoints, limit=args.limit)
+        return
     calibration = Calibration.from_dict(yaml.safe_load((Path(args.data) / "dataset.yaml").read_text())["calibration"])
     models = []
     for path in args.checkpoints:

@@ -22,7 +22,11 @@ import onnxruntime as ort
 import torch
 import yaml
 
-from .train import load_checkpoint, model_from_checkpoint
+from fpp_nodes.core.calibration import Calibration
+from fpp_nodes.core.model import PhaseOrderDecoder, network_input, trusted_single_shot
+
+from .dataset import load_sample, split_files
+from .train import load_checkpoint, model_from_checkpoint, predict
 
 PARITY_TOLERANCE_MM = 1e-3
 CARD_FORMAT = "fpp_model_card"
@@ -32,26 +36,54 @@ def sha256(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+SILENT_ERROR_BUDGET = 0.005  # the share of output pixels off by > 1 mm a threshold may leave, on validation
+CONFIDENCE_GRID = (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999, 0.9999)
+
+
+@torch.no_grad()
+def choose_min_confidence(model, data: str, calibration: Calibration, limit: int = 60) -> dict:
+    """The lowest order confidence (most coverage) whose silent errors (output pixels off the exact
+    depth by more than 1 mm) stay within SILENT_ERROR_BUDGET on the validation split: chosen on
+    validation data, never on the test set."""
+    decoder = PhaseOrderDecoder(calibration)
+    counts = {c: np.zeros(3) for c in CONFIDENCE_GRID}  # output pixels, silent errors, exact pixels
+    for f in split_files(data, "val")[:limit]:
+        image, _, truth = load_sample(f)
+        out = predict(model, torch.from_numpy(network_input(image))[None, None])[0].numpy()
+        for c in CONFIDENCE_GRID:
+            depth = trusted_single_shot(decoder(out, c)[0], image)
+            ok = np.isfinite(depth) & np.isfinite(truth)
+            counts[c] += (ok.sum(), (np.abs(depth[ok] - truth[ok]) > 1.0).sum(), np.isfinite(truth).sum())
+    rows = {c: {"coverage": n[0] / max(n[2], 1), "silent_errors": n[1] / max(n[0], 1)} for c, n in counts.items()}
+    good = [c for c in CONFIDENCE_GRID if rows[c]["silent_errors"] <= SILENT_ERROR_BUDGET and rows[c]["coverage"] > 0]
+    chosen = good[0] if good else CONFIDENCE_GRID[-1]
+    return {"min_confidence": chosen, "chosen_on": f"{data} val", "silent_error_budget": SILENT_ERROR_BUDGET,
+            "validation": {str(c): {k: round(float(v), 5) for k, v in r.items()} for c, r in rows.items()}}
+
+
 def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | None = None) -> dict:
     ckpt = load_checkpoint(checkpoint)
     model, cfg = model_from_checkpoint(ckpt)
+    phase_aware = cfg.arch == "phase"
+    output = "fringe_order" if phase_aware else "depth_mm"
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     example = torch.rand(1, 1, 480 // cfg.downsample // 32 * 32, 640 // cfg.downsample // 32 * 32)
     warnings.filterwarnings("ignore", "You are using the legacy TorchScript-based ONNX export", DeprecationWarning)
     # dynamo=False: the TorchScript exporter gives plain dynamic height/width for this fully convolutional net
-    torch.onnx.export(model, (example,), str(out), dynamo=False, input_names=["image"], output_names=["depth_mm"],
+    torch.onnx.export(model, (example,), str(out), dynamo=False, input_names=["image"], output_names=[output],
                       dynamic_axes={"image": {0: "batch", 2: "height", 3: "width"},
-                                    "depth_mm": {0: "batch", 2: "height", 3: "width"}}, opset_version=17)
+                                    output: {0: "batch", 2: "height", 3: "width"}}, opset_version=17)
     onnx.checker.check_model(onnx.load(str(out)))
     probe = torch.rand(1, 1, *parity_size)
     with torch.no_grad():
         expected = model(probe).numpy()
     session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
-    got = session.run(["depth_mm"], {"image": probe.numpy()})[0]
+    got = session.run([output], {"image": probe.numpy()})[0]
     np.testing.assert_allclose(got, expected, atol=PARITY_TOLERANCE_MM, rtol=0)
     dataset = yaml.safe_load((Path(cfg.data) / "dataset.yaml").read_text()) if (Path(cfg.data) / "dataset.yaml").exists() else {}
     last = ckpt["history"][-1] if ckpt["history"] else {}
+    calibration = dataset.get("calibration")
     card = {
         "format": CARD_FORMAT, "version": 1, "model": out.name, "sha256": sha256(out),
         "architecture": cfg.arch, "width": cfg.width, "parameters": sum(p.numel() for p in model.parameters()),
@@ -59,7 +91,9 @@ def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | No
                   "normalisation": "camera image / full scale (255 for mono8, 65535 for mono16)",
                   "content": "the first phase-shifted image of the highest fringe frequency",
                   "downsample": cfg.downsample, "camera": dataset.get("calibration", {}).get("camera")},
-        "output": {"name": "depth_mm", "units": "mm along the camera's optical axis"},
+        "output": ({"name": output, "channels": "fringe numerator, denominator (full-scale units), r (fringe "
+                    "orders from the calibration's reference-depth phase), log sigma of r (orders)"}
+                   if phase_aware else {"name": output, "units": "mm along the camera's optical axis"}),
         "rig": dataset.get("rig"), "patterns": dataset.get("calibration", {}).get("patterns"),
         "training": {"data": cfg.data, "counts": dataset.get("counts"), "epochs": ckpt["epoch"],
                      "seconds": round(ckpt["train_seconds"], 1), "config": ckpt["config"]},
@@ -67,6 +101,9 @@ def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | No
         "parity": {"size": list(parity_size), "max_abs_diff_mm": float(np.abs(got - expected).max()),
                    "tolerance_mm": PARITY_TOLERANCE_MM},
     }
+    if phase_aware:
+        card["calibration"] = calibration
+        card["decoding"] = choose_min_confidence(model, cfg.data, Calibration.from_dict(calibration))
     out.with_suffix(".yaml").write_text(yaml.safe_dump(card, sort_keys=False))
     return card
 

@@ -46,6 +46,9 @@ def load_models(paths) -> list[tuple[str, object]]:
             from .evaluate import predict_full
             from .train import load_checkpoint, model_from_checkpoint
             net, cfg = model_from_checkpoint(load_checkpoint(path))
+            if cfg.arch == "phase":
+                raise SystemExit(f"{path}: a phase-aware checkpoint; export it (python -m training.export) and "
+                                 "pass the .onnx, whose card holds the threshold chosen on validation data")
             name, predict = NAMES.get(cfg.arch, cfg.arch), (lambda image, net=net, ds=cfg.downsample: predict_full(net, image, ds))
         taken = [n for n, _ in models]
         models.append((name if name not in taken else f"{name} ({path.parent.name})", predict))

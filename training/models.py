@@ -121,7 +121,64 @@ class FCN(nn.Module):
         return self.head(torch.relu(self.up8(x)))
 
 
-ARCHITECTURES = ("fcn", "aen", "unet")
+class PhaseOrderNet(nn.Module):
+    """Phase-aware single shot (after Feng et al. 2019): accuracy from the fringe, order from context.
+
+    The phase branch sees a few fringe periods around each pixel (stride-2 features, a pixel shuffle
+    back to full resolution) and predicts the numerator and denominator of the highest frequency's
+    wrapped phase (B sin phi, B cos phi, in full-scale units). The order branch is a UNet at 1/4
+    resolution over what the phase says and where: the local phase steps along u and v (their sine and
+    cosine, smooth where the fringes are not), the fringe amplitude, the mean level and the pixel
+    coordinates. It predicts r, the absolute phase relative to the calibration's reference-depth phase
+    in fringe orders, and log sigma, the standard deviation it expects of r: large where one image
+    cannot tell the order (an isolated surface, a step), so such pixels become NaN, never a guess.
+    Output (B, 4, H, W): numerator, denominator, r, log sigma.
+    """
+
+    def __init__(self, width: int = 16, phase_width: int = 16):
+        super().__init__()
+        p = phase_width
+        self.phase = nn.Sequential(nn.Conv2d(1, p, 6, stride=2, padding=2), nn.ReLU(inplace=True),
+                                   nn.Conv2d(p, p, 3, padding=1), nn.ReLU(inplace=True),
+                                   nn.Conv2d(p, p, 3, padding=1), nn.ReLU(inplace=True),
+                                   nn.Conv2d(p, 8, 1), nn.PixelShuffle(2))
+        c = [width * 2 ** i for i in range(4)]
+        self.inc = DoubleConv(8, c[0])
+        self.downs = nn.ModuleList(Down(c[i], c[i + 1]) for i in range(3))
+        self.ups = nn.ModuleList(Up(c[i + 1], c[i], c[i]) for i in reversed(range(3)))
+        self.order = nn.Conv2d(c[0], 2, 1)
+
+    @staticmethod
+    def phase_steps(num, den):
+        """sin and cos of the wrapped-phase step to the next pixel along u and along v."""
+        def step(n0, d0, n1, d1):
+            sin, cos = n1 * d0 - d1 * n0, n1 * n0 + d1 * d0
+            norm = torch.sqrt(sin * sin + cos * cos + 1e-8)
+            return sin / norm, cos / norm
+        su, cu = step(num[..., :-1], den[..., :-1], num[..., 1:], den[..., 1:])
+        sv, cv = step(num[..., :-1, :], den[..., :-1, :], num[..., 1:, :], den[..., 1:, :])
+        pad_u, pad_v = (0, 1, 0, 0), (0, 0, 0, 1)
+        return [nn.functional.pad(t, pad_u, mode="replicate") for t in (su, cu)] + \
+               [nn.functional.pad(t, pad_v, mode="replicate") for t in (sv, cv)]
+
+    def forward(self, image):
+        fringe = self.phase(image)
+        num, den = fringe[:, :1], fringe[:, 1:]
+        amplitude = torch.sqrt(num * num + den * den)
+        # the order branch reads the phase, it does not train it
+        features = torch.cat(self.phase_steps(num.detach(), den.detach()) + [amplitude.detach(), image], dim=1)
+        x = self.inc(with_coordinates(nn.functional.avg_pool2d(features, 4)))
+        levels = [x]
+        for down in self.downs:
+            x = down(x)
+            levels.append(x)
+        for up, skip in zip(self.ups, reversed(levels[:-1])):
+            x = up(x, skip)
+        order = nn.functional.interpolate(self.order(x), scale_factor=4, mode="bilinear", align_corners=False)
+        return torch.cat([fringe, order], dim=1)
+
+
+ARCHITECTURES = ("fcn", "aen", "unet", "phase")
 
 
 def build(architecture: str, width: int = 16, dropout: float = 0.1, depth_offset: float = 1200.0,
@@ -132,6 +189,8 @@ def build(architecture: str, width: int = 16, dropout: float = 0.1, depth_offset
         return EncoderDecoder(width, False, dropout, depth_offset, depth_scale)
     if architecture == "fcn":
         return FCN(width, dropout, depth_offset, depth_scale)
+    if architecture == "phase":
+        return PhaseOrderNet(width)
     raise ValueError(f"architecture must be one of {', '.join(ARCHITECTURES)}, got {architecture!r}")
 
 

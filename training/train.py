@@ -22,6 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
+import yaml
 import torch.distributed as dist
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, Dataset, DistributedSampler
@@ -29,7 +30,10 @@ from tqdm import tqdm
 
 from fpp_nodes.core.pictures import depth_colours
 
-from .dataset import load_sample, split_files
+from fpp_nodes.core.calibration import Calibration
+from fpp_nodes.core.model import PhaseOrderDecoder, network_input
+
+from .dataset import load_phase_targets, load_sample, split_files
 from .models import ARCHITECTURES, build, pad_to_stride
 
 BCE_RANGE_MM = (1100.0, 1300.0)  # labels map to [0, 1] over this depth range for the BCE loss
@@ -61,6 +65,8 @@ class TrainConfig:
         for name in ("width", "downsample", "epochs", "batch_size", "patience"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.arch == "phase" and self.downsample != 1:
+            raise ValueError("the phase-aware network (arch phase) needs the full resolution: --downsample 1")
 
 
 def shrink(image: np.ndarray, factor: int, depth: bool = False) -> np.ndarray:
@@ -95,6 +101,50 @@ class FringeDepthSet(Dataset):
         return torch.from_numpy(image)[None], torch.from_numpy(label)[None], torch.from_numpy(truth)[None]
 
 
+class FringePhaseSet(Dataset):
+    """(image [0, 1], fringe numerator/denominator, r in orders, label mm) tensors at full resolution
+    for the phase-aware network; r is the multi-shot phase relative to the calibration's
+    reference-depth phase, in fringe orders (NaN where the label is untrusted)."""
+
+    def __init__(self, files, calibration, augment: bool = False, seed: int = 0):
+        reference = PhaseOrderDecoder(calibration).reference
+        self.items = []
+        for f in files:
+            image, label, _ = load_sample(f)
+            fringe, phase, _ = load_phase_targets(f)
+            orders = ((phase - reference) / (2 * np.pi)).astype(np.float32)
+            self.items.append((image, fringe.astype(np.float16), orders, label))
+        self.augment = augment
+        self.rng = np.random.default_rng(seed)
+
+    def __len__(self):
+        return len(self.items)
+
+    def __getitem__(self, i):
+        image, fringe, orders, label = self.items[i]
+        image, fringe = network_input(image), fringe.astype(np.float32)
+        if self.augment:  # photometric only; the fringe amplitude follows the gain
+            gain = self.rng.uniform(0.8, 1.2)
+            image = image * gain + self.rng.uniform(-0.04, 0.04)
+            image = image + self.rng.normal(0, self.rng.uniform(0, 0.008), image.shape)
+            image, fringe = np.clip(image, 0, 1).astype(np.float32), fringe * np.float32(gain)
+        return (torch.from_numpy(image)[None], torch.from_numpy(fringe), torch.from_numpy(orders)[None],
+                torch.from_numpy(label)[None])
+
+
+LOG_SIGMA_RANGE = (np.log(0.01), np.log(30.0))  # orders
+
+
+def phase_order_loss(pred, fringe, orders):
+    """Squared error of the fringe numerator/denominator, and the Gaussian negative log-likelihood of
+    r with the predicted sigma, over the pixels whose multi-shot label is trusted."""
+    valid = torch.isfinite(orders[:, 0])
+    fringe_error = ((pred[:, :2] - fringe) ** 2).sum(dim=1)[valid].mean()
+    log_sigma = pred[:, 3].clamp(*LOG_SIGMA_RANGE)[valid]
+    nll = 0.5 * (pred[:, 2][valid] - orders[:, 0][valid]) ** 2 * torch.exp(-2 * log_sigma) + log_sigma
+    return 1000.0 * fringe_error + nll.mean()
+
+
 def masked_loss(pred_mm, label_mm, kind: str):
     valid = torch.isfinite(label_mm)
     if kind == "bce":
@@ -115,6 +165,28 @@ def errors_mm(pred, reference):
     ok = torch.isfinite(reference)
     d = (pred[ok] - reference[ok]).double()
     return float((d * d).sum()), float((d.abs() / reference[ok].double()).sum()), int(ok.sum())
+
+
+VALIDATION_CONFIDENCE = 0.99  # for the per-epoch numbers only; the shipped threshold is chosen by evaluate
+
+
+@torch.no_grad()
+def evaluate_phase(model, loader, device, decoder: PhaseOrderDecoder) -> dict:
+    """Loss; RMSE (mm) against the label, coverage of it and the share of pixels off by more than
+    1 mm, over the pixels confident at VALIDATION_CONFIDENCE."""
+    model.eval()
+    losses, sq, n, wrong, n_label = [], 0.0, 0, 0, 0
+    for image, fringe, orders, label in loader:
+        pred = predict(model, image.to(device))
+        losses.append(phase_order_loss(pred, fringe.to(device), orders.to(device)).item())
+        for out, ref in zip(pred.cpu().numpy(), label[:, 0].numpy()):
+            depth, _ = decoder(out, VALIDATION_CONFIDENCE)
+            ok = np.isfinite(depth) & np.isfinite(ref)
+            d = depth[ok].astype(np.float64) - ref[ok]
+            sq, n, wrong, n_label = sq + float(d @ d), n + d.size, wrong + int((np.abs(d) > 1).sum()), n_label + int(np.isfinite(ref).sum())
+    rmse = math.sqrt(sq / max(n, 1))
+    return {"loss": float(np.mean(losses)), "rmse_mm": rmse, "mre": float("nan"), "coverage": n / max(n_label, 1),
+            "silent_errors": wrong / max(n, 1)}
 
 
 @torch.no_grad()
@@ -198,12 +270,19 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     val_files, test_files = split_files(config.data, "val"), split_files(config.data, "test")
     if not train_files or not val_files:
         raise ValueError(f"{config.data} has no train or val samples (make them with python -m training.dataset)")
-    train_set = FringeDepthSet(train_files, config.downsample, config.augment, config.seed + rank)
-    val_set = FringeDepthSet(val_files, config.downsample)
+    phase_aware = config.arch == "phase"
+    if phase_aware:
+        calibration = Calibration.from_dict(yaml.safe_load((Path(config.data) / "dataset.yaml").read_text())["calibration"])
+        decoder = PhaseOrderDecoder(calibration)
+        train_set = FringePhaseSet(train_files, calibration, config.augment, config.seed + rank)
+        val_set = FringePhaseSet(val_files, calibration)
+    else:
+        train_set = FringeDepthSet(train_files, config.downsample, config.augment, config.seed + rank)
+        val_set = FringeDepthSet(val_files, config.downsample)
     sampler = DistributedSampler(train_set, seed=config.seed) if distributed else None
     loader = DataLoader(train_set, config.batch_size, shuffle=sampler is None, sampler=sampler)
     val_loader = DataLoader(val_set, config.batch_size)
-    showcase = FringeDepthSet((test_files or val_files)[:1], config.downsample)[0]  # one fixed test image
+    showcase = val_set[0]  # one fixed validation image
 
     model = build(config.arch, config.width, config.dropout).to(device)
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
@@ -225,34 +304,40 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
         if sampler is not None:
             sampler.set_epoch(epoch)
         total, batches = 0.0, 0
-        for image, label, _ in tqdm(loader, desc=f"epoch {epoch}/{config.epochs}", leave=False, disable=None if rank == 0 else True):
+        for image, *targets in tqdm(loader, desc=f"epoch {epoch}/{config.epochs}", leave=False, disable=None if rank == 0 else True):
             optimizer.zero_grad()
-            loss = masked_loss(predict(model, image.to(device)), label.to(device), config.loss)
+            pred = predict(model, image.to(device))
+            loss = (phase_order_loss(pred, *(t.to(device) for t in targets[:2])) if phase_aware
+                    else masked_loss(pred, targets[0].to(device), config.loss))
             loss.backward()
             optimizer.step()
             total, batches = total + loss.item(), batches + 1
         seconds += time.perf_counter() - started
-        metrics = evaluate(model, val_loader, device, config.loss)
+        metrics = (evaluate_phase(model, val_loader, device, decoder) if phase_aware
+                   else evaluate(model, val_loader, device, config.loss))
         val_loss = metrics["loss"]
         scheduler.step(val_loss)
         if rank != 0:
             continue
         history.append({"epoch": epoch, "train_loss": total / max(batches, 1), "val_loss": val_loss,
                         "val_rmse_mm": metrics["rmse_mm"], "val_mre": metrics["mre"],
+                        **{f"val_{k}": metrics[k] for k in ("coverage", "silent_errors") if k in metrics},
                         "lr": optimizer.param_groups[0]["lr"], "seconds": seconds})
         net = model.module if distributed else model
         net.eval()
         with torch.no_grad():
-            shown = predict(net, showcase[0][None].to(device))[0, 0].cpu().numpy()
+            shown = predict(net, showcase[0][None].to(device))[0].cpu().numpy()
+        shown = decoder(shown, VALIDATION_CONFIDENCE)[0] if phase_aware else shown[0]
         cv2.imwrite(str(out / "epochs" / f"epoch_{epoch:04d}.png"),
-                    np.hstack([depth_colours(showcase[1][0].numpy()), depth_colours(shown)]))
+                    np.hstack([depth_colours(showcase[-1][0].numpy()), depth_colours(shown)]))
         save_checkpoint(out / "last.pt", model, optimizer, scheduler, config, epoch, history, seconds)
         if val_loss < best:
             best = val_loss
             save_checkpoint(out / "best.pt", model, optimizer, scheduler, config, epoch, history, seconds)
         write_curves(out, history)
+        extra = (f", coverage {metrics['coverage']:.1%}, > 1 mm {metrics['silent_errors']:.2%}" if phase_aware else "")
         print(f"epoch {epoch}: train loss {history[-1]['train_loss']:.4g}, val loss {val_loss:.4g}, "
-              f"val RMSE {metrics['rmse_mm']:.3f} mm, lr {history[-1]['lr']:.2g}, {seconds:.0f} s", flush=True)
+              f"val RMSE {metrics['rmse_mm']:.3f} mm{extra}, lr {history[-1]['lr']:.2g}, {seconds:.0f} s", flush=True)
     if distributed:
         dist.destroy_process_group()
     return history[-1] if history else {}

@@ -19,6 +19,7 @@ class Topics:
     DEPTH_INFO = "depth/camera_info"
     POINTS = "points"  # sensor_msgs/PointCloud2, organized, metres
     QUALITY = "quality/image"  # sensor_msgs/Image 32FC1: fringe modulation, camera counts
+    CONFIDENCE = "confidence/image"  # sensor_msgs/Image 32FC1: P(fringe order right), single shot
     TRUTH = "sim/depth_truth"  # sensor_msgs/Image 32FC1, metres: the simulator's exact depth
     CALIBRATION = "fpp/calibration"  # std_msgs/String, latched: calibration YAML (from a replayed bag)
 

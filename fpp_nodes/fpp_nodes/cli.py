@@ -19,10 +19,10 @@ import yaml
 from tqdm import tqdm
 
 from .core import io, pictures
-from .core.calibration import Calibration, CalibrationError, CameraIntrinsics
+from .core.calibration import Calibration, CalibrationError, CameraIntrinsics, back_project
 from .core.metrics import depth_errors
 from .core.patterns import PatternSet
-from .core.reconstruct import PspReconstructor, QualityLimits, reconstruct_ftp
+from .core.reconstruct import PspReconstructor, QualityLimits, Reconstruction, reconstruct_ftp
 from .core.simulation import Rig, SCENE_KINDS, make_scene, render, scene_from_file
 from .core.workflow import (CALIBRATION_DEPTHS_MM, calibrate_from_planes, fringe_depth_mm, held_out_scenes, score,
                             simulated_calibration)
@@ -91,10 +91,17 @@ def cmd_calibrate(args) -> None:
     print(f"wrote {args.out}")
 
 
-def _reconstruct(images: np.ndarray, calibration: Calibration, method: str, limits: QualityLimits):
+def _reconstruct(images: np.ndarray, calibration: Calibration, method: str, limits: QualityLimits,
+                 model_path: str | None = None):
     if method == "psp":
         return PspReconstructor(calibration, limits)(images)
     index = calibration.patterns.single_shot_index if len(images) > 1 else 0
+    if method == "cnn":  # what cnn_depth does, offline
+        from .core.model import DepthModel, default_model_path
+        depth, confidence = DepthModel(model_path or default_model_path()).infer(images[index])
+        quality = confidence if confidence is not None else np.isfinite(depth).astype(np.float32)
+        return Reconstruction(depth, back_project(depth, calibration.camera), np.isfinite(depth), quality,
+                              np.full(depth.shape, np.nan, np.float32))
     return reconstruct_ftp(images[index], calibration, limits)
 
 
@@ -139,7 +146,7 @@ def cmd_reconstruct(args) -> None:
     images = io.read_stack(io.image_paths(args.images))
     limits = QualityLimits(args.min_modulation, max_depth_step_mm=args.max_depth_step)
     start = time.perf_counter()
-    rec = _reconstruct(images, calibration, args.method, limits)
+    rec = _reconstruct(images, calibration, args.method, limits, args.model)
     elapsed = time.perf_counter() - start
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -245,8 +252,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reconstruct", help="fringe images -> depth, point cloud, picture")
     p.add_argument("images", nargs="+", help="a folder of fringe_*.png/.tif, or the image files in projection order")
     p.add_argument("--calibration", required=True)
-    p.add_argument("--method", choices=("psp", "ftp"), default="psp",
-                   help="psp: all images; ftp: one image (the first of the highest frequency)")
+    p.add_argument("--method", choices=("psp", "ftp", "cnn"), default="psp",
+                   help="psp: all images; ftp and cnn: one image (the first of the highest frequency; "
+                        "cnn runs the single-shot network as cnn_depth does)")
+    p.add_argument("--model", help="with --method cnn: an ONNX model with its card (default: the shipped one)")
     p.add_argument("--min-modulation", type=float, default=QualityLimits.min_modulation)
     p.add_argument("--max-depth-step", type=float, default=QualityLimits.max_depth_step_mm)
     p.add_argument("--truth", help="ground-truth depth in mm (.npy/.tiff) for error.png (default: the folder's "

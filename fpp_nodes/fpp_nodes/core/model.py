@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import yaml
 
+from .calibration import Calibration
 from .reconstruct import QualityLimits, drop_flying_pixels, full_scale
 
 STRIDE = 32
@@ -62,6 +63,17 @@ class DepthModel:
         except Exception as e:  # onnxruntime raises its own types for corrupt files
             raise ModelError(f"cannot load model {path}: {str(e).splitlines()[0]}") from None
         self.providers = self.session.get_providers()
+        self.output = self.session.get_outputs()[0].name
+        self.decoder = None
+        if self.output == "fringe_order":  # a phase-aware model: its card holds its calibration
+            try:
+                self.decoder = PhaseOrderDecoder(Calibration.from_dict(self.card["calibration"]))
+                self.min_confidence = float(self.card["decoding"]["min_confidence"])
+            except (KeyError, TypeError, ValueError) as e:
+                raise ModelError(f"model card {card_path} lacks the calibration or threshold of a phase-aware "
+                                 f"model ({type(e).__name__}: {e})") from None
+            if self.downsample != 1:
+                raise ModelError(f"model card {card_path}: a phase-aware model runs at full resolution")
 
     def check(self, image: np.ndarray) -> None:
         if image.ndim != 2 or (image.shape[1], image.shape[0]) != self.size:
@@ -73,15 +85,68 @@ class DepthModel:
     def __call__(self, image: np.ndarray) -> np.ndarray:
         """Depth in mm (float32, camera size) of one fringe image, NaN where it is not to be trusted
         (see trusted_single_shot)."""
+        return self.infer(image)[0]
+
+    def infer(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(depth mm, confidence) of one fringe image. A phase-aware model's confidence is the
+        probability that each pixel's fringe order is right (NaN depth below its threshold); a
+        depth-regressing model has none."""
         self.check(image)
-        x = image.astype(np.float32) * np.float32(1.0 / np.iinfo(image.dtype).max)
+        x = network_input(image)
         w, h = self.size[0] // self.downsample, self.size[1] // self.downsample
         if self.downsample > 1:
             x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA)
         x = cv2.copyMakeBorder(x, 0, (-h) % STRIDE, 0, (-w) % STRIDE, cv2.BORDER_REPLICATE)
-        depth = self.session.run(["depth_mm"], {"image": x[None, None]})[0][0, 0, :h, :w]
-        depth = cv2.resize(depth, self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else depth
-        return trusted_single_shot(depth, image)
+        out = self.session.run([self.output], {"image": x[None, None]})[0][0, :, :h, :w]
+        if self.decoder is not None:
+            depth, confidence = self.decoder(out, self.min_confidence)
+            return trusted_single_shot(depth, image), confidence
+        depth = cv2.resize(out[0], self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else out[0]
+        return trusted_single_shot(depth, image), None
+
+
+def network_input(image: np.ndarray) -> np.ndarray:
+    """The camera image as every network takes it: float32, 0 to 1 of the camera's full scale."""
+    return image.astype(np.float32) * np.float32(1.0 / full_scale(image.dtype))
+
+
+def order_confidence(log_sigma: np.ndarray) -> np.ndarray:
+    """P(|error| < half an order) for a Gaussian of standard deviation exp(log_sigma) orders:
+    erf(0.5 / (sqrt(2) sigma)), by Abramowitz and Stegun 7.1.26 (error < 1.5e-7)."""
+    x = np.float32(0.5 / np.sqrt(2.0)) * np.exp(-log_sigma)
+    t = 1.0 / (1.0 + np.float32(0.3275911) * x)
+    poly = t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027 + t * 1.061405429))))
+    return (1.0 - poly * np.exp(-x * x)).astype(np.float32)
+
+
+class PhaseOrderDecoder:
+    """A phase-aware network's output -> depth, for the calibration it was trained with.
+
+    The wrapped phase is the angle of (denominator, numerator); the order is the whole number of
+    periods that brings it nearest to the network's coarse absolute phase (the reference-depth phase
+    plus r orders); the rational model turns the absolute phase into depth. Pixels whose order the
+    network is less sure of than min_confidence are NaN."""
+
+    def __init__(self, calibration: Calibration):
+        cam = calibration.camera
+        u = np.arange(cam.width, dtype=np.float64)[None, :]
+        v = np.arange(cam.height, dtype=np.float64)[:, None]
+        shape = (cam.height, cam.width)
+        self.reference = np.broadcast_to(calibration.model.phase_at_depth(calibration.reference_depth_mm, u, v),
+                                         shape).astype(np.float32)
+        self.terms = [np.ascontiguousarray(np.broadcast_to(t, shape), np.float32)
+                      for t in calibration.model.linear_in_phase(u, v)]
+
+    def __call__(self, out: np.ndarray, min_confidence: float) -> tuple[np.ndarray, np.ndarray]:
+        num, den, orders, log_sigma = (np.ascontiguousarray(c, np.float32) for c in out)
+        wrapped = cv2.phase(den, num)  # atan2(num, den) in [0, 2 pi)
+        coarse = self.reference + np.float32(2 * np.pi) * orders
+        phase = wrapped + np.float32(2 * np.pi) * np.rint((coarse - wrapped) * np.float32(1 / (2 * np.pi)))
+        ca, cb, da, db = self.terms
+        depth = (ca + cb * phase) / (da + db * phase)
+        confidence = order_confidence(log_sigma)
+        depth[~(confidence >= min_confidence)] = np.nan
+        return depth, confidence
 
 
 def trusted_single_shot(depth: np.ndarray, image: np.ndarray,

@@ -5,7 +5,9 @@ Subscribes camera/image_raw (mono8/mono16: the first phase-shifted image of the 
 the network was trained), keeping only the newest frame (KEEP_LAST 1): under load older frames are
 dropped, never queued. Publishes depth/image (32FC1, metres, NaN where the image shows no usable
 fringes: shadows, dark or saturated areas), depth/camera_info and points (organized PointCloud2,
-metres), with the image's header, and its health on /diagnostics. A frame of the wrong size or
+metres), with the image's header, and its health on /diagnostics. A phase-aware model also gives
+confidence/image (32FC1: the probability that each pixel's fringe order is right; depth is NaN below
+the threshold its card holds, chosen on validation data). A frame of the wrong size or
 encoding is rejected and counted; a missing, corrupt or mismatched model stops the node at start.
 Parameters: model (path; empty = the shipped default), providers (CPUExecutionProvider; CUDA where
 present), threads (onnxruntime intra-op threads), calibration (intrinsics for the cloud).
@@ -50,6 +52,7 @@ class CnnDepth(Node):
         self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
         self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
         self.points_pub = self.create_publisher(PointCloud2, Topics.POINTS, Qos.LARGE)
+        self.confidence_pub = self.create_publisher(Image, Topics.CONFIDENCE, Qos.LARGE)
         self.create_subscription(Image, Topics.CAMERA_IMAGE, self._on_image, NEWEST_ONLY)
         card = self.model.card
         self.health.facts.update({"model": path, "model sha256": card["sha256"][:12],
@@ -62,17 +65,20 @@ class CnnDepth(Node):
         self.health.count("frames in")
         want_depth = self.depth_pub.get_subscription_count() > 0
         want_points = self.points_pub.get_subscription_count() > 0
-        if not (want_depth or want_points):
+        want_confidence = self.confidence_pub.get_subscription_count() > 0
+        if not (want_depth or want_points or want_confidence):
             self.health.count("frames skipped (no subscribers)")
             return
         start = time.perf_counter()
         try:
-            depth_mm = self.model(image_to_numpy(msg))
+            depth_mm, confidence = self.model.infer(image_to_numpy(msg))
         except (ImageError, ModelError) as e:
             self.health.report("frames rejected", f"image rejected: {e}")
             return
         if want_depth:
             self.depth_pub.publish(numpy_to_image(depth_mm * np.float32(0.001), msg.header))
+        if want_confidence and confidence is not None:
+            self.confidence_pub.publish(numpy_to_image(confidence, msg.header))
         if want_points:
             self.points_pub.publish(xyz_to_cloud(back_project(depth_mm, self.calibration.camera) * np.float32(0.001),
                                                  msg.header))
