@@ -132,10 +132,11 @@ def report(robot: Robot, out: Path) -> None:
           "RMSE and cover (of lit pixels) against the simulator's exact depth.")
     if robot.cnn_clouds:
         print("\nside by side, the single-shot path (cnn_depth on each sequence's first 100-fringe image):")
-        print(f"{'cloud':>5} {'image->cloud ms':>15} {'RMSE mm':>8}")
+        print(f"{'cloud':>5} {'image->cloud ms':>15} {'RMSE mm':>8} {'cover':>6}")
         for i, (cloud, arrived) in enumerate(robot.cnn_clouds):
             io.write_ply(out / f"cnn_cloud_{i:02d}.ply", cloud_to_xyz(cloud))
-            print(f"{i:5d} {(arrived - stamp_ns(cloud.header.stamp)) / 1e6:15.1f} {cloud_rmse_mm(cloud, robot.truth)[0]:8.3f}")
+            rmse, cover = cloud_rmse_mm(cloud, robot.truth)
+            print(f"{i:5d} {(arrived - stamp_ns(cloud.header.stamp)) / 1e6:15.1f} {rmse:8.3f} {cover:6.1%}")
         curves["single-shot (CNN)"] = write_pictures(out, robot.cnn_clouds, robot.truth, "cnn_", "single-shot")
     row = pictures.profile_row(curves["ground truth"])
     cv2.imwrite(str(out / "profile.png"), pictures.height_profile(row, {k: v[row] for k, v in curves.items()}))
