@@ -25,6 +25,7 @@ import yaml
 from fpp_nodes.core import pictures
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.reconstruct import reconstruct_ftp
+from fpp_nodes.core.simulation import Rig, Scene, render
 
 from .dataset import load_sample, split_files
 
@@ -129,6 +130,49 @@ def copy_scaled(item: str, out: Path) -> Path:
     return target
 
 
+def failure_scenes(rig: Rig) -> dict:
+    """The shapes a depth-regressing network trained on one family got wrong (issue 10), on the default
+    rig's background plane: a 20 mm Gaussian bump, a sphere of radius 40 mm, a plane tilted 15 degrees,
+    blocks 30, 60 and 90 mm tall. None is in any data set."""
+    x, y = rig.camera().rays()
+    X, Y = x * rig.standoff_mm, y * rig.standoff_mm
+    plane = rig.standoff_mm / (1.0 + 0 * x)
+    sphere = np.sqrt(np.clip(40.0 ** 2 - X ** 2 - Y ** 2, 0, None))
+    blocks = np.select([np.abs(Y) > 30, X < -25, X < 25], [0.0, 30.0, 60.0], 90.0)
+    heights = {"bump 20 mm": 20.0 * np.exp(-(X ** 2 + Y ** 2) / (2 * 18.0 ** 2)), "sphere r 40 mm": sphere,
+               "blocks 30/60/90 mm": blocks}
+    scenes = {name: Scene(name, plane - h, np.full(plane.shape, 0.9)) for name, h in heights.items()}
+    scenes["plane tilted 15 deg"] = Scene("tilted", rig.standoff_mm / (1.0 - x * np.tan(np.radians(15.0))),
+                                          np.full(plane.shape, 0.9))
+    return scenes
+
+
+def failure_figure(models, rig: Rig, seed: int = 5) -> tuple[np.ndarray, list]:
+    """A row per failure scene: the fringe image, the exact depth and each model's error (NaN grey), with
+    RMSE against the exact depth, the share of output pixels off by more than 1 mm and the coverage of
+    lit pixels. Returns the picture and the rows of numbers."""
+    patterns, rows, table = rig.pattern_set(), [], []
+    for name, scene in failure_scenes(rig).items():
+        capture = render(rig, scene, patterns, np.random.default_rng(seed))
+        image, truth = capture.images[patterns.single_shot_index], np.where(capture.valid, capture.depth_mm, np.nan)
+        tiles, captions = [image, pictures.depth_colours(truth)], [name, "exact depth"]
+        for model_name, predict in models:
+            depth = predict(image)
+            ok = np.isfinite(depth) & np.isfinite(truth)
+            d = depth[ok] - truth[ok]
+            numbers = (float(np.sqrt(np.mean(d * d))) if d.size else float("nan"),
+                       float(np.mean(np.abs(d) > 1.0)) if d.size else 0.0, ok.sum() / np.isfinite(truth).sum())
+            table.append((name, model_name, *numbers))
+            error = np.where(ok, depth - truth, np.nan)
+            tiles.append(pictures._colour(error, -5.0, 5.0, pictures.DIVERGING))
+            captions.append(f"{model_name}: {numbers[1]:.0%} >1mm, cover {numbers[2]:.0%}")
+        rows.append(pictures.side_by_side(tiles, captions, height=240))
+    width = max(r.shape[1] for r in rows)
+    picture = np.vstack([cv2.copyMakeBorder(r, 0, 6, 0, width - r.shape[1], cv2.BORDER_CONSTANT, value=(255, 255, 255))
+                         for r in rows])
+    return picture, table
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m training.figures", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -141,9 +185,20 @@ def main(argv=None):
     parser.add_argument("--panel", type=int, default=260, help="panel height of Figure 2, px")
     parser.add_argument("--also", action="append", default=[], metavar="FILE[:SCALE]",
                         help="another picture to copy beside them (repeat for more)")
+    parser.add_argument("--failures", action="store_true",
+                        help="failures.png instead: issue 10's failure cases (error maps, +-5 mm) and their numbers")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.failures:
+        picture, table = failure_figure(load_models(args.models), Rig())
+        cv2.imwrite(str(out / "failures.png"), picture, PNG)
+        print(f"{'scene':22}{'model':>28}{'RMSE mm':>10}{'>1mm':>8}{'cover':>8}")
+        for name, model_name, rmse_mm, silent, cover in table:
+            print(f"{name:22}{model_name[:27]:>28}{rmse_mm:10.3f}{silent:8.1%}{cover:8.1%}")
+        print(f"wrote {out / 'failures.png'}; RMSE against the exact depth over the pixels given a depth, "
+              ">1mm: share of those off by more than 1 mm, cover: share of lit pixels given a depth")
+        return
     written = [copy_scaled(item, out) for item in args.also]
     data = Path(args.data) if args.data else None
     if data is None or not (data / "dataset.yaml").is_file():
