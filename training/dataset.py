@@ -4,6 +4,7 @@ images; the simulator's exact depth is kept beside it, so label errors and netwo
 be measured. Shadowed and untrusted pixels are invalid in the label and are left out of the loss.
 
     python -m training.dataset --out data/fpp --set single [--counts 540,60,72] [--workers 2]
+    python -m training.dataset --out data/fpp --set surface     # scene families, phase targets (see SETS)
     python -m training.dataset --out data/my_rig --from-bag bags/run1 [--split train]
 
 On disk (a folder per set and split, one file per sample):
@@ -12,6 +13,9 @@ On disk (a folder per set and split, one file per sample):
     <out>/<set>/<split>/<seed>.npz     input  uint8 (H, W)   the fringe image
                                        label  uint16 (H, W)  PSP depth, (mm - 1000) * 100, 0 = invalid
                                        truth  uint16 (H, W)  exact depth, same encoding, 0 = shadow
+                         families/surface: phase  float32 (H, W)     multi-shot absolute phase, NaN invalid
+                                           fringe float16 (2, H, W)  its numerator and denominator
+                                           family str                the scene family
 
 The uint16 encoding holds 1000.01-1655.35 mm in 0.01 mm steps (rounding adds 0.003 mm RMS).
 """
@@ -34,7 +38,11 @@ from fpp_nodes.core.simulation import Rig, make_scene, random_rig, render
 SPLITS = ("train", "val", "test")
 # set name -> (scene kind, paper's counts, first seed); seeds never overlap between sets or splits
 SETS = {"single": ("sculpture", (540, 60, 72), 100_000), "multi": ("objects", (630, 70, 40), 200_000),
-        "families": ("families", (1000, 120, 180), 300_000)}
+        "families": ("families", (1000, 120, 180), 300_000), "surface": ("families", (600, 48, 96), 400_000)}
+# The families set spans the working volume: backgrounds anywhere in 1100-1300 mm. The surface set puts
+# the background (the work surface) at the calibration's reference depth at the image centre, any tilt:
+# one 100-fringe image cannot tell the fringe order of a surface at an unknown depth (measured: a
+# phase-aware network trained on the families set answers with the prior's spread, about 5 orders).
 # The families set: training and validation see these families; the test split sees every family, so
 # the held-out ones (never in training, validation or any design choice) measure generalisation.
 TRAIN_FAMILIES = ("bust", "freeform", "blocks", "planes", "floating")
@@ -88,7 +96,7 @@ def family_of(split: str, i: int) -> str:
     return families[i % len(families)]
 
 
-def make_sample(kind: str, seed: int, families: bool = False) -> dict:
+def make_sample(kind: str, seed: int, families: bool = False, surface_mm: float | None = None) -> dict:
     """Render one scene, reconstruct it with the multi-shot path, keep the first 100-fringe image.
 
     For the families set (families=True) the scene is rendered with random photometry (random_rig),
@@ -98,7 +106,7 @@ def make_sample(kind: str, seed: int, families: bool = False) -> dict:
     rig, patterns, psp = _worker["rig"], _worker["patterns"], _worker["psp"]
     if families:
         rig = random_rig(np.random.default_rng([seed, 1]), rig)
-    capture = render(rig, make_scene(rig, kind, seed), patterns, np.random.default_rng(seed))
+    capture = render(rig, make_scene(rig, kind, seed, surface_mm), patterns, np.random.default_rng(seed))
     rec = psp(capture.images)
     truth = np.where(capture.valid, capture.depth_mm, np.nan)
     sample = {"input": capture.images[patterns.single_shot_index],
@@ -113,8 +121,8 @@ def make_sample(kind: str, seed: int, families: bool = False) -> dict:
 
 
 def _write(job):
-    kind, seed, path, families = job
-    np.savez_compressed(path, **make_sample(kind, seed, families))
+    kind, seed, path, families, surface_mm = job
+    np.savez_compressed(path, **make_sample(kind, seed, families, surface_mm))
     return path
 
 
@@ -123,6 +131,7 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
     kind, paper_counts, _ = SETS[set_name]
     counts = tuple(counts or paper_counts)
     calibration_path = calibration_path or default_calibration_path()
+    surface_mm = Calibration.load(calibration_path).reference_depth_mm if set_name == "surface" else None
     folder = Path(out) / set_name
     jobs = []
     for split, n in zip(SPLITS, counts):
@@ -131,12 +140,14 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
             path = folder / split / f"{seed_of(set_name, split, i)}.npz"
             if not path.exists():
                 families = kind == "families"
-                jobs.append((family_of(split, i) if families else kind, seed_of(set_name, split, i), path, families))
+                jobs.append((family_of(split, i) if families else kind, seed_of(set_name, split, i), path, families,
+                             surface_mm))
     rig = Rig()
     (folder / "dataset.yaml").write_text(yaml.safe_dump({
         "format": "fpp_dataset", "version": FORMAT_VERSION, "set": set_name, "scene": kind,
         **({"train_families": list(TRAIN_FAMILIES), "held_out_families": list(HELD_OUT_FAMILIES)}
            if kind == "families" else {}),
+        **({"background_centre_mm": surface_mm} if surface_mm is not None else {}),
         "counts": dict(zip(SPLITS, counts)), "first_seeds": {s: seed_of(set_name, s, 0) for s in SPLITS},
         "input": "first image of the highest frequency", "label": "multi-shot PSP depth",
         "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},
@@ -203,7 +214,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m training.dataset", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default="data/fpp")
-    parser.add_argument("--set", choices=sorted(SETS), action="append", help="default: both")
+    parser.add_argument("--set", choices=sorted(SETS), action="append", help="default: single and multi (the paper's)")
     parser.add_argument("--counts", help="train,val,test (default: the paper's)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--calibration", help="calibration YAML (default: the simulated rig's, or a bag's own)")
@@ -221,7 +232,7 @@ def main(argv=None):
             assert len(counts) == 3 and min(counts) >= 0
         except (ValueError, AssertionError):
             sys.exit(f"dataset: --counts must be three non-negative integers train,val,test, got {args.counts!r}")
-    for name in args.set or sorted(SETS):
+    for name in args.set or ("single", "multi"):
         print(f"wrote {write_set(args.out, name, counts, args.workers, args.calibration)}")
 
 

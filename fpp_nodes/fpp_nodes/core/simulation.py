@@ -310,15 +310,15 @@ NOISE_SIGMA = (0.5, 3.0)
 BLUR_SIGMA_PX = (0.3, 1.2)
 
 
-def _background(rig: Rig, rng: np.random.Generator) -> np.ndarray:
+def _background(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> np.ndarray:
     """A plane tilted by up to MAX_TILT_DEG towards a random direction, its depth at the image centre
-    uniform in BACKGROUND_DEPTH_MM (the top lowered where a steep tilt would take a corner beyond
+    uniform in centre_mm (the top lowered where a steep tilt would take a corner beyond
     SURFACE_DEPTH_MM)."""
     tilt, direction = np.radians(rng.uniform(0.0, MAX_TILT_DEG)), rng.uniform(0.0, 2.0 * np.pi)
     slope_x, slope_y = np.tan(tilt) * np.cos(direction), np.tan(tilt) * np.sin(direction)
     unit = _background_depth(rig, np.degrees(np.arctan(slope_x)), np.degrees(np.arctan(slope_y))) / rig.standoff_mm
-    low, high = BACKGROUND_DEPTH_MM
-    return rng.uniform(low, min(high, SURFACE_DEPTH_MM[1] / unit.max())) * unit
+    low, high = centre_mm
+    return rng.uniform(low, max(low, min(high, SURFACE_DEPTH_MM[1] / unit.max()))) * unit
 
 
 def _on_background(background: np.ndarray, height: np.ndarray) -> np.ndarray:
@@ -364,10 +364,10 @@ def _surface_albedo(rng: np.random.Generator, X, Y) -> np.ndarray:
     return np.clip(rng.uniform(*ALBEDO_BASE) * _texture(rng, X, Y), ALBEDO_MIN, 1.0)
 
 
-def _standing(rig: Rig, rng: np.random.Generator, name: str, height: np.ndarray) -> Scene:
+def _standing(rig: Rig, rng: np.random.Generator, name: str, height: np.ndarray, centre_mm) -> Scene:
     """Objects (a height map, 0 where there is none) on a sampled background, each with its own albedo."""
     X, Y = _grid_mm(rig)
-    depth = _on_background(_background(rig, rng), height)
+    depth = _on_background(_background(rig, rng, centre_mm), height)
     on_object, on_background = _surface_albedo(rng, X, Y), _surface_albedo(rng, X, Y)
     return Scene(name, depth, np.where(height > 0, on_object, on_background))
 
@@ -460,40 +460,40 @@ def _thin_height(X, Y, rng: np.random.Generator) -> np.ndarray:
     return height
 
 
-def bust(rig: Rig, rng: np.random.Generator) -> Scene:
+def bust(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
     """The sculpture's bust, moved about the view, on a sampled background."""
     X, Y = _grid_mm(rig)
     dx, dy = rng.uniform(-30.0, 30.0), rng.uniform(-20.0, 20.0)
-    return _standing(rig, rng, "bust", _bust_height(X - dx, Y - dy, rng))
+    return _standing(rig, rng, "bust", _bust_height(X - dx, Y - dy, rng), centre_mm)
 
 
-def freeform(rig: Rig, rng: np.random.Generator) -> Scene:
+def freeform(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
     X, Y = _grid_mm(rig)
-    return _standing(rig, rng, "freeform", _freeform_height(X, Y, rng))
+    return _standing(rig, rng, "freeform", _freeform_height(X, Y, rng), centre_mm)
 
 
-def blocks(rig: Rig, rng: np.random.Generator) -> Scene:
+def blocks(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
     X, Y = _grid_mm(rig)
-    return _standing(rig, rng, "blocks", _blocks_height(X, Y, rng))
+    return _standing(rig, rng, "blocks", _blocks_height(X, Y, rng), centre_mm)
 
 
-def spheres(rig: Rig, rng: np.random.Generator) -> Scene:
+def spheres(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
     X, Y = _grid_mm(rig)
-    return _standing(rig, rng, "spheres", _spheres_height(X, Y, rng))
+    return _standing(rig, rng, "spheres", _spheres_height(X, Y, rng), centre_mm)
 
 
-def thin(rig: Rig, rng: np.random.Generator) -> Scene:
+def thin(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
     X, Y = _grid_mm(rig)
-    return _standing(rig, rng, "thin", _thin_height(X, Y, rng))
+    return _standing(rig, rng, "thin", _thin_height(X, Y, rng), centre_mm)
 
 
-def planes(rig: Rig, rng: np.random.Generator) -> Scene:
+def planes(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
     """A sampled background filling the view, nothing on it."""
     X, Y = _grid_mm(rig)
-    return Scene("planes", _background(rig, rng), _surface_albedo(rng, X, Y))
+    return Scene("planes", _background(rig, rng, centre_mm), _surface_albedo(rng, X, Y))
 
 
-def floating(rig: Rig, rng: np.random.Generator) -> Scene:
+def floating(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
     """1-3 freeform islands, blocks or spheres in the working range with no background: elsewhere a
     black void (albedo 0) at VOID_DEPTH_MM."""
     X, Y = _grid_mm(rig)
@@ -504,7 +504,7 @@ def floating(rig: Rig, rng: np.random.Generator) -> Scene:
                  _blocks_height(X, Y, rng) if kind == 1 else _spheres_height(X, Y, rng))
         height = np.maximum(height, shape)
     solid = height > 0
-    depth = np.where(solid, _on_background(_background(rig, rng), height), VOID_DEPTH_MM)
+    depth = np.where(solid, _on_background(_background(rig, rng, centre_mm), height), VOID_DEPTH_MM)
     return Scene("floating", depth, np.where(solid, _surface_albedo(rng, X, Y), 0.0))
 
 
@@ -532,8 +532,8 @@ def make_scene(rig: Rig, kind: str, seed: int = 0, depth_mm: float | None = None
         return objects_scene(rig, rng)
     if kind == "plane":
         return plane_scene(rig, rig.standoff_mm if depth_mm is None else depth_mm)
-    if kind in SCENE_FAMILIES:
-        return SCENE_FAMILIES[kind](rig, rng)
+    if kind in SCENE_FAMILIES:  # depth_mm given: the background's depth at the image centre
+        return SCENE_FAMILIES[kind](rig, rng, *([] if depth_mm is None else [(depth_mm, depth_mm)]))
     return scene_from_file(rig, kind)
 
 
