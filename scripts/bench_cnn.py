@@ -48,11 +48,11 @@ def main():
     args = parser.parse_args()
     rig = Rig()
     patterns = rig.pattern_set()
-    image = render(rig, make_scene(rig, "sculpture", 5), patterns, np.random.default_rng(5)).images[12]
+    image = render(rig, make_scene(rig, "sculpture", 5), patterns, np.random.default_rng(5)).images[patterns.single_shot_index]
     model = DepthModel(args.model, threads=args.threads)
     h, w = 480 // model.downsample, 640 // model.downsample
     x = np.zeros((1, 1, h + (-h) % 32, w + (-w) % 32), np.float32)
-    bare = timed(lambda: model.session.run(["depth_mm"], {"image": x}), 50)
+    bare = timed(lambda: model.session.run([model.output], {"image": x}), 50)
     full = timed(lambda: model(image), 50)
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(args.domain))
@@ -91,7 +91,7 @@ def main():
     print(f"{'':44} {'ms p50':>7} {'ms p95':>7} {'frames/s':>9}")
     print(f"{'bare onnxruntime session (' + 'x'.join(map(str, x.shape[2:][::-1])) + ')':44} "
           f"{np.median(bare):7.1f} {np.percentile(bare, 95):7.1f} {1000 / np.median(bare):9.1f}")
-    print(f"{'DepthModel (+ grow back, mask untrusted)':44} {np.median(full):7.1f} {np.percentile(full, 95):7.1f} "
+    print(f"{'DepthModel (+ decode, mask untrusted)':44} {np.median(full):7.1f} {np.percentile(full, 95):7.1f} "
           f"{1000 / np.median(full):9.1f}")
     print(f"{'cnn_depth node, stamp to depth here':44} {np.median(lat):7.1f} {np.percentile(lat, 95):7.1f} "
           f"{len(lat) / elapsed:9.1f}")

@@ -23,7 +23,7 @@ import torch
 import yaml
 
 from fpp_nodes.core.calibration import Calibration
-from fpp_nodes.core.model import PhaseOrderDecoder, network_input, trusted_single_shot
+from fpp_nodes.core.model import PhaseOrderDecoder, fringe_mask, network_input, trusted_single_shot
 
 from .dataset import load_sample, split_files
 from .train import load_checkpoint, model_from_checkpoint, predict
@@ -46,19 +46,24 @@ def choose_min_confidence(model, data: str, calibration: Calibration, limit: int
     depth by more than 1 mm) stay within SILENT_ERROR_BUDGET on the validation split: chosen on
     validation data, never on the test set."""
     decoder = PhaseOrderDecoder(calibration)
-    counts = {c: np.zeros(3) for c in CONFIDENCE_GRID}  # output pixels, silent errors, exact pixels
+    # per threshold, with and without the edge rule: output pixels, silent errors, exact pixels
+    counts = {(c, edge): np.zeros(3) for c in CONFIDENCE_GRID for edge in (True, False)}
     for f in split_files(data, "val")[:limit]:
         image, _, truth = load_sample(f)
         out = predict(model, torch.from_numpy(network_input(image))[None, None])[0].numpy()
         for c in CONFIDENCE_GRID:
-            depth = trusted_single_shot(decoder(out, c)[0], image)
-            ok = np.isfinite(depth) & np.isfinite(truth)
-            counts[c] += (ok.sum(), (np.abs(depth[ok] - truth[ok]) > 1.0).sum(), np.isfinite(truth).sum())
-    rows = {c: {"coverage": n[0] / max(n[2], 1), "silent_errors": n[1] / max(n[0], 1)} for c, n in counts.items()}
-    good = [c for c in CONFIDENCE_GRID if rows[c]["silent_errors"] <= SILENT_ERROR_BUDGET and rows[c]["coverage"] > 0]
+            depth = decoder(out, c)[0]
+            for edge in (True, False):
+                shown = trusted_single_shot(depth.copy(), image) if edge else np.where(fringe_mask(image), depth, np.nan)
+                ok = np.isfinite(shown) & np.isfinite(truth)
+                counts[c, edge] += (ok.sum(), (np.abs(shown[ok] - truth[ok]) > 1.0).sum(), np.isfinite(truth).sum())
+    rows = {key: {"coverage": n[0] / max(n[2], 1), "silent_errors": n[1] / max(n[0], 1)} for key, n in counts.items()}
+    good = [c for c in CONFIDENCE_GRID if rows[c, True]["silent_errors"] <= SILENT_ERROR_BUDGET and rows[c, True]["coverage"] > 0]
     chosen = good[0] if good else CONFIDENCE_GRID[-1]
     return {"min_confidence": chosen, "chosen_on": f"{data} val", "silent_error_budget": SILENT_ERROR_BUDGET,
-            "validation": {str(c): {k: round(float(v), 5) for k, v in r.items()} for c, r in rows.items()}}
+            "validation": {str(c): {k: round(float(v), 5) for k, v in rows[c, True].items()} for c in CONFIDENCE_GRID},
+            "validation_without_edge_rule": {str(c): {k: round(float(v), 5) for k, v in rows[c, False].items()}
+                                             for c in CONFIDENCE_GRID}}
 
 
 def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | None = None) -> dict:

@@ -232,9 +232,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="render fringe images of a scene with the simulated rig")
     p.add_argument("--scene", default="sculpture",
-                   help="sculpture, objects, plane, or a height map file (.npy, 16-bit PNG, TIFF; mm)")
+                   help=f"{', '.join(SCENE_KINDS)}, or a height map file (.npy, 16-bit PNG, TIFF; mm)")
     p.add_argument("--map-kind", choices=("height", "depth"), default="height", help="what a scene file holds")
-    p.add_argument("--depth", type=float, default=None, help="plane depth in mm (scene 'plane')")
+    p.add_argument("--depth", type=float, default=None, help="plane depth in mm (scene 'plane'; for a family: its background's depth at the image centre)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--count", type=int, default=1, help="captures with seeds seed, seed+1, ...")
     p.add_argument("--noise", type=float, default=Rig.noise_sigma, help="camera noise, counts")

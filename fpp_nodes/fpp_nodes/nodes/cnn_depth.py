@@ -10,7 +10,8 @@ confidence/image (32FC1: the probability that each pixel's fringe order is right
 the threshold its card holds, chosen on validation data). A frame of the wrong size or
 encoding is rejected and counted; a missing, corrupt or mismatched model stops the node at start.
 Parameters: model (path; empty = the shipped default), providers (CPUExecutionProvider; CUDA where
-present), threads (onnxruntime intra-op threads), calibration (intrinsics for the cloud).
+present), threads (onnxruntime intra-op threads), min_confidence (negative: the model card's),
+calibration (intrinsics for the cloud).
 """
 from __future__ import annotations
 
@@ -37,13 +38,19 @@ class CnnDepth(Node):
         path = declare(self, "model", "", "ONNX model with its card beside it (empty: the shipped default)", True)
         providers = declare(self, "providers", ["CPUExecutionProvider"], "onnxruntime execution providers", True)
         threads = declare(self, "threads", 2, "onnxruntime intra-op threads", True)
+        min_confidence = declare(self, "min_confidence", -1.0, "a phase-aware model's order confidence below which "
+                                 "depth is NaN (negative: its card's, chosen on validation data)", True)
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
+        if min_confidence > 1.0:
+            raise ValueError(f"min_confidence must be <= 1 (negative: the model card's), got {min_confidence}")
         self.health = Health(self)
         self.calibration, source = load_calibration(self)
         self.health.facts["calibration"] = describe(self.calibration, source)
         path = path or default_model_path()
         self.model = DepthModel(path, providers, threads)
+        if min_confidence >= 0 and self.model.decoder is not None:
+            self.model.min_confidence = min_confidence
         cam = self.calibration.camera
         if (cam.width, cam.height) != self.model.size:
             raise ModelError(f"the model was trained for {self.model.size[0]}x{self.model.size[1]} images, "
