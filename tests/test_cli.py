@@ -120,3 +120,26 @@ def test_bad_input_is_one_line_and_a_non_zero_exit(workdir, tmp_path):
 def test_core_imports_without_ros():
     code = "import sys, fpp_nodes.cli, fpp_nodes.core.workflow; assert not any(m.startswith('rclpy') for m in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+def test_reconstruct_with_the_single_shot_network(tmp_path):
+    """fpp reconstruct --method cnn runs the network as cnn_depth does: the paper's UNet on a scene of its
+    own family, and the shipped default, which may answer NaN but never more than 1% wrong by > 1 mm."""
+    from fpp_nodes.core.calibration import default_calibration_path
+    from fpp_nodes.core.model import paper_model_path
+    assert fpp("simulate", "--scene", "sculpture", "--seed", 1000, "--out", tmp_path / "scene").returncode == 0
+    truth = np.load(tmp_path / "scene" / "depth_gt_mm.npy")
+    lit = cv2.imread(str(tmp_path / "scene" / "valid_gt.png"), cv2.IMREAD_UNCHANGED) > 0
+    for name, model in (("paper", ["--model", paper_model_path()]), ("default", [])):
+        r = fpp("reconstruct", tmp_path / "scene", "--calibration", default_calibration_path(), "--method", "cnn",
+                *model, "--out", tmp_path / name)
+        assert r.returncode == 0 and (tmp_path / name / "points.ply").is_file(), r.stderr
+        depth = np.load(tmp_path / name / "depth_mm.npy")
+        ok = np.isfinite(depth) & lit
+        if name == "paper":
+            assert ok.sum() > 0.95 * lit.sum() and np.sqrt(np.mean((depth - truth)[ok] ** 2)) < 0.6
+        else:
+            assert np.count_nonzero(np.abs(depth - truth)[ok] > 1.0) <= 0.01 * max(ok.sum(), 1)
+    r = fpp("reconstruct", tmp_path / "scene", "--calibration", default_calibration_path(), "--method", "cnn",
+            "--model", tmp_path / "missing.onnx", "--out", tmp_path / "x")
+    assert r.returncode == 2 and "does not exist" in r.stderr

@@ -10,7 +10,7 @@ import pytest
 from fpp_nodes import cli
 from fpp_nodes.core import pictures as P
 from fpp_nodes.core.calibration import CameraIntrinsics, back_project, default_calibration_path
-from fpp_nodes.core.model import default_model_path
+from fpp_nodes.core.model import paper_model_path
 
 H, W = 120, 160
 
@@ -139,7 +139,7 @@ def test_figures_2_and_3_from_a_data_set_and_an_onnx_model(tmp_path):
     (tmp_path / "extra").mkdir()
     cv2.imwrite(str(tmp_path / "extra" / "x.png"), np.zeros((40, 60, 3), np.uint8))
     figures.main(["--data", str(data), "--out", str(tmp_path / "pics"), "--also", f"{tmp_path}/extra/x.png:0.5",
-                  default_model_path()])
+                  paper_model_path()])
     fig2, fig3 = (cv2.imread(str(tmp_path / "pics" / f)) for f in ("figure2.png", "figure3.png"))
     assert fig2.shape[1] > 3 * fig2.shape[0] // 2 and fig3 is not None  # input, truth, UNet in a row
     assert cv2.imread(str(tmp_path / "pics" / "extra_x.png")).shape == (20, 30, 3)

@@ -31,7 +31,7 @@ from .dataset import load_sample, split_files
 
 PNG = [cv2.IMWRITE_PNG_COMPRESSION, 9]
 MARK_BGR = (0, 0, 230)  # the profile's line on the input image
-NAMES = {"fcn": "FCN", "aen": "AEN", "unet": "UNet"}  # as the paper writes them
+NAMES = {"fcn": "FCN", "aen": "AEN", "unet": "UNet", "phase": "phase-aware"}  # as the paper writes them
 
 
 def load_models(paths) -> list[tuple[str, object]]:

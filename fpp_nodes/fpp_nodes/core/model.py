@@ -28,7 +28,15 @@ class ModelError(ValueError):
 
 
 def default_model_path() -> str:
-    """The model trained by the project's documented command, shipped in the package."""
+    """The shipped default: the phase-aware model (make phase-model), which says NaN where it cannot
+    tell the fringe order."""
+    return str(resources.files("fpp_nodes") / "data" / "models" / "phase.onnx")
+
+
+def paper_model_path() -> str:
+    """The paper's UNet regressing depth (make paper-model), shipped for the reproduction (Table 1). It
+    knows only its training family, a bust on a plane at the reference depth tilted at most 3 degrees,
+    and is silently wrong elsewhere."""
     return str(resources.files("fpp_nodes") / "data" / "models" / "unet.onnx")
 
 
@@ -89,8 +97,8 @@ class DepthModel:
 
     def infer(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(depth mm, confidence) of one fringe image. A phase-aware model's confidence is the
-        probability that each pixel's fringe order is right (NaN depth below its threshold); a
-        depth-regressing model has none."""
+        probability that each pixel's fringe order is right (NaN depth below its threshold; NaN itself
+        where the image shows no usable fringes); a depth-regressing model has none."""
         self.check(image)
         x = network_input(image)
         w, h = self.size[0] // self.downsample, self.size[1] // self.downsample
@@ -100,7 +108,9 @@ class DepthModel:
         out = self.session.run([self.output], {"image": x[None, None]})[0][0, :, :h, :w]
         if self.decoder is not None:
             depth, confidence = self.decoder(out, self.min_confidence)
-            return trusted_single_shot(depth, image), confidence
+            fringes = fringe_mask(image)
+            confidence[~fringes] = np.nan  # no fringes: nothing to be confident about
+            return trusted_single_shot(depth, image, fringes=fringes), confidence
         depth = cv2.resize(out[0], self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else out[0]
         return trusted_single_shot(depth, image), None
 
@@ -150,12 +160,13 @@ class PhaseOrderDecoder:
 
 
 def trusted_single_shot(depth: np.ndarray, image: np.ndarray,
-                        max_depth_step_mm: float = QualityLimits.max_depth_step_mm) -> np.ndarray:
+                        max_depth_step_mm: float = QualityLimits.max_depth_step_mm,
+                        fringes: np.ndarray | None = None) -> np.ndarray:
     """Set a network's depth to NaN (in place) where the image shows no usable fringes, and where it
     smears a depth edge: a pixel whose depth differs from a neighbour's by more than max_depth_step_mm,
     the multi-shot path's flying-pixel rule. A network smooths a depth step across a few pixels; on
     the multi-object test set the rule took its half-order errors from 0.29% to 0.007% of pixels."""
-    depth[~fringe_mask(image)] = np.nan
+    depth[~(fringe_mask(image) if fringes is None else fringes)] = np.nan
     depth[~drop_flying_pixels(depth, max_depth_step_mm)] = np.nan
     return depth
 

@@ -93,7 +93,12 @@ class CnnDepth(Node):
         self.info_pub.publish(self.info)
         self.health.count("depth out")
         self.health.latency(time.perf_counter() - start)
-        self.health.usable_pixels(np.count_nonzero(np.isfinite(depth_mm)) / depth_mm.size, "frames without fringes")
+        # usable: pixels that show fringes (a phase-aware model's confidence is NaN elsewhere); a pixel
+        # with fringes whose order is unsure is no fault of the input
+        usable = depth_mm if confidence is None else confidence
+        self.health.usable_pixels(np.count_nonzero(np.isfinite(usable)) / usable.size, "frames without fringes")
+        if confidence is not None:
+            self.health.facts["depth given (last)"] = f"{np.count_nonzero(np.isfinite(depth_mm)) / depth_mm.size:.1%}"
 
 
 def main(args=None):
