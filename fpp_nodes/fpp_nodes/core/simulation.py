@@ -467,24 +467,19 @@ def bust(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> S
     return _standing(rig, rng, "bust", _bust_height(X - dx, Y - dy, rng), centre_mm)
 
 
-def freeform(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
-    X, Y = _grid_mm(rig)
-    return _standing(rig, rng, "freeform", _freeform_height(X, Y, rng), centre_mm)
+def _standing_family(name: str, height_of):
+    """A family of objects from height_of(X, Y, rng) on a sampled background."""
+    def family(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
+        X, Y = _grid_mm(rig)
+        return _standing(rig, rng, name, height_of(X, Y, rng), centre_mm)
+    family.__name__ = name
+    return family
 
 
-def blocks(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
-    X, Y = _grid_mm(rig)
-    return _standing(rig, rng, "blocks", _blocks_height(X, Y, rng), centre_mm)
-
-
-def spheres(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
-    X, Y = _grid_mm(rig)
-    return _standing(rig, rng, "spheres", _spheres_height(X, Y, rng), centre_mm)
-
-
-def thin(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
-    X, Y = _grid_mm(rig)
-    return _standing(rig, rng, "thin", _thin_height(X, Y, rng), centre_mm)
+freeform = _standing_family("freeform", _freeform_height)
+blocks = _standing_family("blocks", _blocks_height)
+spheres = _standing_family("spheres", _spheres_height)
+thin = _standing_family("thin", _thin_height)
 
 
 def planes(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
