@@ -77,35 +77,41 @@ SILENT_ERROR_MM = 1.0
 def family_table(data: str, model_paths, split: str = "test", limit: int = 0) -> None:
     """Generalisation by scene family, on the split's samples (the families set's test split holds the
     held-out families too): RMSE against the exact depth, silent errors (the share of output pixels off
-    it by more than SILENT_ERROR_MM) and coverage (the share of lit pixels given a depth)."""
+    it by more than SILENT_ERROR_MM), coverage (the share of lit pixels given a depth) and, for a
+    phase-aware model, the mean confidence in the fringe order over the lit pixels that show fringes."""
     from .figures import load_models
     models = load_models(model_paths)
     info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
     held_out = set(info.get("held_out_families", []))
-    stats = {}  # (family, model) -> [squared error, output pixels, silent errors, lit pixels]
+    stats = {}  # (family, model) -> [squared error, output pixels, silent errors, lit pixels, confidence sum, n]
     for f in split_files(data, split)[: limit or None]:
         with np.load(f, allow_pickle=False) as z:
             family = str(z["family"]) if "family" in z else info.get("scene", "?")
         image, _, truth = load_sample(f)
         for name, predict in models:
-            depth = predict(image)
+            depth, confidence = predict.infer(image) if hasattr(predict, "infer") else (predict(image), None)
             ok = np.isfinite(depth) & np.isfinite(truth)
             d = depth[ok].astype(np.float64) - truth[ok]
-            acc = stats.setdefault((family, name), np.zeros(4))
-            acc += (float(d @ d), d.size, int((np.abs(d) > SILENT_ERROR_MM).sum()), int(np.isfinite(truth).sum()))
+            sure = np.zeros(1) if confidence is None else confidence[np.isfinite(confidence) & np.isfinite(truth)]
+            acc = stats.setdefault((family, name), np.zeros(6))
+            acc += (float(d @ d), d.size, int((np.abs(d) > SILENT_ERROR_MM).sum()), int(np.isfinite(truth).sum()),
+                    float(sure.sum()), sure.size if confidence is not None else 0)
     names = [n for n, _ in models]
     families = sorted({f for f, _ in stats}, key=lambda f: (f in held_out, f))
     print(f"{split} split of {data}, by scene family (* held out of training and validation)")
-    print(f"{'family':14}" + "".join(f"{n[:24]:>26}" for n in names))
-    print(f"{'':14}" + "".join(f"{'RMSE mm  >1mm   cover':>26}" for _ in names))
+    print(f"{'family':14}" + "".join(f"{n[:30]:>32}" for n in names))
+    print(f"{'':14}" + "".join(f"{'RMSE mm  >1mm   cover  conf':>32}" for _ in names))
     for family in families:
         cells = []
         for n in names:
-            sq, out, silent, lit = stats[(family, n)]
-            cells.append(f"{np.sqrt(sq / max(out, 1)):8.3f} {silent / max(out, 1):6.2%} {out / max(lit, 1):7.1%}")
-        print(f"{family + (' *' if family in held_out else ''):14}" + "".join(f"{c:>26}" for c in cells))
+            sq, out, silent, lit, conf, sure = stats[(family, n)]
+            rmse = f"{np.sqrt(sq / out):8.3f}" if out else f"{'-':>8}"
+            cells.append(f"{rmse} {silent / max(out, 1):6.2%} {out / max(lit, 1):7.1%} "
+                         + (f"{conf / sure:5.2f}" if sure else f"{'-':>5}"))
+        print(f"{family + (' *' if family in held_out else ''):14}" + "".join(f"{c:>32}" for c in cells))
     print(f"RMSE against the exact depth over the pixels given a depth; >1mm: share of those off by more than "
-          f"{SILENT_ERROR_MM:g} mm (silent errors); cover: share of lit pixels given a depth")
+          f"{SILENT_ERROR_MM:g} mm (silent errors); cover: share of lit pixels given a depth; conf: a phase-aware "
+          "model's mean confidence in the fringe order over the lit pixels that show fringes")
 
 
 def main(argv=None):
