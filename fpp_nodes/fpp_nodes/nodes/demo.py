@@ -95,7 +95,8 @@ def per_cloud(robot: Robot, frames_per_sequence: int = 16) -> list[dict]:
 def cloud_rmse_mm(cloud, truth) -> tuple[float, float]:
     z = cloud_to_xyz(cloud)[..., 2]
     ok = np.isfinite(z) & np.isfinite(truth)
-    return float(np.sqrt(np.mean((z[ok] - truth[ok]) ** 2)) * 1000), ok.sum() / np.isfinite(truth).sum()
+    rmse = float(np.sqrt(np.mean((z[ok] - truth[ok]) ** 2)) * 1000) if ok.any() else float("nan")  # no depth: no error
+    return rmse, ok.sum() / np.isfinite(truth).sum()
 
 
 def write_pictures(out: Path, clouds: list, truth_m: np.ndarray, prefix: str, label: str) -> np.ndarray | None:
