@@ -14,7 +14,7 @@ import numpy as np
 import yaml
 
 from .calibration import Calibration
-from .reconstruct import QualityLimits, drop_flying_pixels, full_scale
+from .reconstruct import QualityLimits, depth_terms, drop_flying_pixels, full_scale
 
 STRIDE = 32
 # Local fringe contrast is measured over one fringe period of the default rig's highest frequency
@@ -141,11 +141,9 @@ class PhaseOrderDecoder:
         cam = calibration.camera
         u = np.arange(cam.width, dtype=np.float64)[None, :]
         v = np.arange(cam.height, dtype=np.float64)[:, None]
-        shape = (cam.height, cam.width)
         self.reference = np.broadcast_to(calibration.model.phase_at_depth(calibration.reference_depth_mm, u, v),
-                                         shape).astype(np.float32)
-        self.terms = [np.ascontiguousarray(np.broadcast_to(t, shape), np.float32)
-                      for t in calibration.model.linear_in_phase(u, v)]
+                                         (cam.height, cam.width)).astype(np.float32)
+        self.terms = depth_terms(calibration)
 
     def __call__(self, out: np.ndarray, min_confidence: float) -> tuple[np.ndarray, np.ndarray]:
         num, den, orders, log_sigma = (np.ascontiguousarray(c, np.float32) for c in out)
@@ -164,8 +162,7 @@ def trusted_single_shot(depth: np.ndarray, image: np.ndarray,
                         fringes: np.ndarray | None = None) -> np.ndarray:
     """Set a network's depth to NaN (in place) where the image shows no usable fringes, and where it
     smears a depth edge: a pixel whose depth differs from a neighbour's by more than max_depth_step_mm,
-    the multi-shot path's flying-pixel rule. A network smooths a depth step across a few pixels; on
-    the multi-object test set the rule took its half-order errors from 0.29% to 0.007% of pixels."""
+    the multi-shot path's flying-pixel rule. A network smooths a depth step across a few pixels."""
     depth[~(fringe_mask(image) if fringes is None else fringes)] = np.nan
     depth[~drop_flying_pixels(depth, max_depth_step_mm)] = np.nan
     return depth

@@ -98,6 +98,16 @@ def trusted_depth(depth: np.ndarray, valid: np.ndarray, max_step: float) -> tupl
     return depth, valid
 
 
+def depth_terms(calibration: Calibration) -> list[np.ndarray]:
+    """The rational model's per-pixel terms (ca, cb, da, db), float32 at the camera's size, so that
+    depth = (ca + cb phi) / (da + db phi): computed once per calibration, not per image."""
+    cam = calibration.camera
+    u = np.arange(cam.width, dtype=np.float64)[None, :]
+    v = np.arange(cam.height, dtype=np.float64)[:, None]
+    return [np.ascontiguousarray(np.broadcast_to(t, (cam.height, cam.width)), np.float32)
+            for t in calibration.model.linear_in_phase(u, v)]
+
+
 class PspReconstructor:
     """The multi-shot path for one calibration; per-pixel model terms are computed once, here.
 
@@ -107,12 +117,7 @@ class PspReconstructor:
     def __init__(self, calibration: Calibration, limits: QualityLimits = QualityLimits()):
         self.calibration = calibration
         self.limits = limits
-        cam = calibration.camera
-        u = np.arange(cam.width, dtype=np.float64)[None, :]
-        v = np.arange(cam.height, dtype=np.float64)[:, None]
-        self._ca, self._cb, self._da, self._db = (np.ascontiguousarray(np.broadcast_to(t, (cam.height, cam.width)),
-                                                                       np.float32)
-                                                  for t in calibration.model.linear_in_phase(u, v))
+        self._ca, self._cb, self._da, self._db = depth_terms(calibration)
 
     def check(self, images: np.ndarray) -> None:
         cal = self.calibration
