@@ -42,7 +42,9 @@ def load_models(paths) -> list[tuple[str, object]]:
         if path.suffix == ".onnx":
             from fpp_nodes.core.model import DepthModel
             model = DepthModel(path)
-            name, predict = NAMES.get(str(model.card.get("architecture")), path.stem), model
+            arch = str(model.card.get("architecture"))
+            name = NAMES.get(arch, path.stem) + ("" if path.stem in (arch, "unet") else f" ({path.stem})")
+            predict = model
         else:
             from .evaluate import predict_full
             from .train import load_checkpoint, model_from_checkpoint
