@@ -2,7 +2,7 @@
 entropy on labels normalised to [0, 1]), learning rate halved when the validation loss has not improved
 for `patience` epochs, augmentation, weight decay, dropout. Every epoch: a checkpoint that describes
 itself (config, weights, optimizer, metrics; loaded with weights_only=True, so no pickle runs), the
-prediction of one fixed test image as a picture (the paper's Visualization 2), the loss curves as CSV
+prediction of one fixed validation image as a picture (the paper's Visualization 2), the loss curves as CSV
 and PNG. Resume with --resume. Several processes or machines: launch with torchrun
 (DistributedDataParallel, gloo on the CPU, nccl on GPUs).
 
@@ -167,7 +167,7 @@ def errors_mm(pred, reference):
     return float((d * d).sum()), float((d.abs() / reference[ok].double()).sum()), int(ok.sum())
 
 
-VALIDATION_CONFIDENCE = 0.99  # for the per-epoch numbers only; the shipped threshold is chosen by evaluate
+VALIDATION_CONFIDENCE = 0.99  # for the per-epoch numbers only; export chooses the model's threshold
 
 
 @torch.no_grad()
@@ -329,7 +329,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
             shown = predict(net, showcase[0][None].to(device))[0].cpu().numpy()
         shown = decoder(shown, VALIDATION_CONFIDENCE)[0] if phase_aware else shown[0]
         cv2.imwrite(str(out / "epochs" / f"epoch_{epoch:04d}.png"),
-                    np.hstack([depth_colours(showcase[-1][0].numpy()), depth_colours(shown)]))
+                    np.hstack([depth_colours(showcase[3 if phase_aware else 1][0].numpy()), depth_colours(shown)]))
         save_checkpoint(out / "last.pt", model, optimizer, scheduler, config, epoch, history, seconds)
         if val_loss < best:
             best = val_loss
