@@ -41,8 +41,8 @@ SETS = {"single": ("sculpture", (540, 60, 72), 100_000), "multi": ("objects", (6
         "families": ("families", (1000, 120, 180), 300_000), "surface": ("families", (600, 48, 96), 400_000)}
 # The families set spans the working volume: backgrounds anywhere in 1100-1300 mm. The surface set puts
 # the background (the work surface) at the calibration's reference depth at the image centre, any tilt:
-# one 100-fringe image cannot tell the fringe order of a surface at an unknown depth (measured: a
-# phase-aware network trained on the families set answers with the prior's spread, about 5 orders).
+# one 100-fringe image cannot tell the fringe order of a surface at an unknown depth (a phase-aware
+# network trained on the families set is as unsure as the prior: the conf column of evaluate --families).
 # The families set: training and validation see these families; the test split sees every family, so
 # the held-out ones (never in training, validation or any design choice) measure generalisation.
 TRAIN_FAMILIES = ("bust", "freeform", "blocks", "planes", "floating")
@@ -75,7 +75,7 @@ def load_phase_targets(path) -> tuple[np.ndarray, np.ndarray, str]:
     of a families-set sample."""
     with np.load(path, allow_pickle=False) as z:
         if "phase" not in z:
-            raise ValueError(f"{path} has no phase targets (make a families set: --set families)")
+            raise ValueError(f"{path} has no phase targets (make a set with them: --set families or surface)")
         return z["fringe"].astype(np.float32), z["phase"], str(z["family"])
 
 
@@ -100,9 +100,9 @@ def make_sample(kind: str, seed: int, families: bool = False, surface_mm: float 
     """Render one scene, reconstruct it with the multi-shot path, keep the first 100-fringe image.
 
     For the families set (families=True) the scene is rendered with random photometry (random_rig),
-    and the sample also keeps its family and the multi-shot phase: `phase`, the absolute phase of the highest frequency (float32, NaN
-    where untrusted), and `fringe`, its numerator and denominator (B sin phi, B cos phi over full
-    scale, float16), the phase-aware network's targets."""
+    and the sample also keeps its family and the multi-shot phase: `phase`, the absolute phase of the
+    highest frequency (float32, NaN where untrusted), and `fringe`, its numerator and denominator
+    (B sin phi, B cos phi over full scale, float16), the phase-aware network's targets."""
     rig, patterns, psp = _worker["rig"], _worker["patterns"], _worker["psp"]
     if families:
         rig = random_rig(np.random.default_rng([seed, 1]), rig)

@@ -8,7 +8,7 @@ exact depth by more than half the depth one fringe period of the highest frequen
 6 mm at the default rig), the errors a wrong fringe order makes.
 
     python -m training.evaluate --data data/fpp/single runs/fcn/best.pt runs/aen/best.pt runs/unet/best.pt
-    python -m training.evaluate --data data/fpp/families --families runs/phase/model.onnx unet.onnx
+    python -m training.evaluate --data data/fpp/families --families runs/phase/phase.onnx runs/surface/surface.onnx
 """
 from __future__ import annotations
 

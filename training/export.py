@@ -51,10 +51,12 @@ def choose_min_confidence(model, data: str, calibration: Calibration, limit: int
     for f in split_files(data, "val")[:limit]:
         image, _, truth = load_sample(f)
         out = predict(model, torch.from_numpy(network_input(image))[None, None])[0].numpy()
+        fringes = fringe_mask(image)
         for c in CONFIDENCE_GRID:
             depth = decoder(out, c)[0]
             for edge in (True, False):
-                shown = trusted_single_shot(depth.copy(), image) if edge else np.where(fringe_mask(image), depth, np.nan)
+                shown = (trusted_single_shot(depth.copy(), image, fringes=fringes) if edge
+                         else np.where(fringes, depth, np.nan))
                 ok = np.isfinite(shown) & np.isfinite(truth)
                 counts[c, edge] += (ok.sum(), (np.abs(shown[ok] - truth[ok]) > 1.0).sum(), np.isfinite(truth).sum())
     rows = {key: {"coverage": n[0] / max(n[2], 1), "silent_errors": n[1] / max(n[0], 1)} for key, n in counts.items()}

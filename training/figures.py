@@ -25,7 +25,7 @@ import yaml
 from fpp_nodes.core import pictures
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.reconstruct import reconstruct_ftp
-from fpp_nodes.core.simulation import Rig, Scene, render
+from fpp_nodes.core.simulation import Rig, Scene, plane_scene, render
 
 from .dataset import load_sample, split_files
 
@@ -138,14 +138,13 @@ def failure_scenes(rig: Rig) -> dict:
     blocks 30, 60 and 90 mm tall. None is in any data set."""
     x, y = rig.camera().rays()
     X, Y = x * rig.standoff_mm, y * rig.standoff_mm
-    plane = rig.standoff_mm / (1.0 + 0 * x)
+    plane = plane_scene(rig, rig.standoff_mm).depth_mm
     sphere = np.sqrt(np.clip(40.0 ** 2 - X ** 2 - Y ** 2, 0, None))
     blocks = np.select([np.abs(Y) > 30, X < -25, X < 25], [0.0, 30.0, 60.0], 90.0)
     heights = {"bump 20 mm": 20.0 * np.exp(-(X ** 2 + Y ** 2) / (2 * 18.0 ** 2)), "sphere r 40 mm": sphere,
                "blocks 30/60/90 mm": blocks}
     scenes = {name: Scene(name, plane - h, np.full(plane.shape, 0.9)) for name, h in heights.items()}
-    scenes["plane tilted 15 deg"] = Scene("tilted", rig.standoff_mm / (1.0 - x * np.tan(np.radians(15.0))),
-                                          np.full(plane.shape, 0.9))
+    scenes["plane tilted 15 deg"] = plane_scene(rig, rig.standoff_mm, tilt_x_deg=15.0)
     return scenes
 
 
