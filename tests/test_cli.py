@@ -1,5 +1,6 @@
 """The offline `fpp` tool as a user runs it: a subprocess, files in, files out, one-line errors."""
 import subprocess
+from dataclasses import replace
 import sys
 
 import cv2
@@ -30,7 +31,7 @@ def workdir(tmp_path_factory):
 
 def test_simulate_writes_images_and_ground_truth(workdir):
     scene = workdir / "scene"
-    assert len(list(scene.glob("fringe_*.png"))) == 16
+    assert len(list(scene.glob("fringe_*.png"))) == 17  # 16 phase-shift images + the composite
     assert np.load(scene / "depth_gt_mm.npy").shape == (480, 640)
     assert cv2.imread(str(scene / "fringe_00.png"), cv2.IMREAD_UNCHANGED).dtype == np.uint8
     for name in ("sensor.yaml", "capture.yaml", "valid_gt.png"):
@@ -94,7 +95,7 @@ def bad_inputs(workdir, tmp_path):
     bad_cal = tmp_path / "bad.yaml"
     bad_cal.write_text(cal.read_text().replace("fx:", "fy_typo:", 1))
     return [
-        (("reconstruct", few, "--calibration", cal, "--out", tmp_path / "o"), "expected 16 images"),
+        (("reconstruct", few, "--calibration", cal, "--out", tmp_path / "o"), "expected 17 images"),
         (("reconstruct", small, "--calibration", cal, "--out", tmp_path / "o"), "640x480"),
         (("reconstruct", broken, "--calibration", cal, "--out", tmp_path / "o"), "cannot read image"),
         (("reconstruct", tmp_path / "nothing", "--calibration", cal, "--out", tmp_path / "o"), "does not exist"),
@@ -125,13 +126,21 @@ def test_core_imports_without_ros():
 def test_reconstruct_with_the_single_shot_network(tmp_path):
     """fpp reconstruct --method cnn runs the network as cnn_depth does: the paper's UNet on a scene of its
     own family, and the shipped default, which may answer NaN but never more than 1% wrong by > 1 mm."""
-    from fpp_nodes.core.calibration import default_calibration_path
+    from fpp_nodes.core.calibration import Calibration, default_calibration_path
     from fpp_nodes.core.model import paper_model_path
     assert fpp("simulate", "--scene", "sculpture", "--seed", 1000, "--out", tmp_path / "scene").returncode == 0
     truth = np.load(tmp_path / "scene" / "depth_gt_mm.npy")
     lit = cv2.imread(str(tmp_path / "scene" / "valid_gt.png"), cv2.IMREAD_UNCHANGED) > 0
-    for name, model in (("paper", ["--model", paper_model_path()]), ("default", [])):
-        r = fpp("reconstruct", tmp_path / "scene", "--calibration", default_calibration_path(), "--method", "cnn",
+    shipped = Calibration.load(default_calibration_path())
+    paper = tmp_path / "paper.yaml"  # the same rig showing the paper's single-shot frame, as the UNet expects
+    Calibration(shipped.camera, shipped.model, replace(shipped.patterns, single_shot="paper"),
+                shipped.reference_depth_mm).save(paper)
+    r = fpp("reconstruct", tmp_path / "scene", "--calibration", default_calibration_path(), "--method", "cnn",
+            "--model", paper_model_path(), "--out", tmp_path / "x")
+    assert r.returncode == 2 and "reads the 'paper' single-shot frame" in r.stderr, r.stderr
+    for name, calibration, model in (("paper", paper, ["--model", paper_model_path()]),
+                                     ("default", default_calibration_path(), [])):
+        r = fpp("reconstruct", tmp_path / "scene", "--calibration", calibration, "--method", "cnn",
                 *model, "--out", tmp_path / name)
         assert r.returncode == 0 and (tmp_path / name / "points.ply").is_file(), r.stderr
         depth = np.load(tmp_path / name / "depth_mm.npy")

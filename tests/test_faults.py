@@ -18,7 +18,7 @@ from std_msgs.msg import String
 from fpp_msgs_py import Frames, Qos, Topics, cloud_to_xyz, header_at, image_to_numpy, numpy_to_image, stamp_ns
 from fpp_nodes.core.calibration import default_calibration_path
 from fpp_nodes.core.model import default_model_path, paper_model_path
-from fpp_nodes.core.patterns import line_image, pattern_lines
+from fpp_nodes.core.patterns import pattern_images
 from fpp_nodes.core.simulation import Rig, make_scene, render
 from rosgraph import Diagnostics
 from test_ros_sensor import check_clouds, collect, rmse_mm
@@ -48,7 +48,7 @@ def captured(kind: str, seed: int):
     rig = Rig()
     patterns = rig.pattern_set()
     capture = render(rig, make_scene(rig, kind, seed), patterns, np.random.default_rng(seed))
-    return patterns, capture, [line_image(patterns, line) for line in pattern_lines(patterns)]
+    return patterns, capture, pattern_images(patterns)
 
 
 def test_bad_frames_into_the_multi_shot_path(ros_graph):

@@ -5,18 +5,19 @@ from fpp_nodes.core.patterns import PatternError, PatternSet, generate_patterns
 
 
 def test_equation_1_values_and_order():
-    p = PatternSet(frequencies=(1, 4), steps=4, width=64, height=8, gamma=1.0)
+    p = PatternSet(frequencies=(1, 4), steps=4, width=64, height=8, gamma=1.0, single_shot="paper")
     pats = generate_patterns(p)
     assert pats.shape == (8, 8, 64) and pats.dtype == np.uint8
     x = np.arange(64)
-    for i, (f, j) in enumerate(p.order()):
+    for i, (f, j) in enumerate((f, j) for f in p.frequencies for j in range(p.steps)):
         expected = np.round(255 * 0.5 * (1 + np.cos(2 * np.pi * f * x / 64 + 2 * np.pi * j / 4)))
         np.testing.assert_array_equal(pats[i, 3], expected)
         assert np.all(pats[i] == pats[i, 0])  # vertical fringes: every row is the same
 
 
 def test_horizontal_16_bit_any_resolution_and_steps():
-    p = PatternSet(frequencies=(1, 3, 9), steps=5, width=37, height=50, orientation="horizontal", bit_depth=16, gamma=1.0)
+    p = PatternSet(frequencies=(1, 3, 9), steps=5, width=37, height=50, orientation="horizontal", bit_depth=16, gamma=1.0,
+                   single_shot="paper")
     pats = generate_patterns(p)
     assert pats.shape == (15, 50, 37) and pats.dtype == np.uint16
     assert np.all(pats[7] == pats[7][:, :1])  # horizontal fringes: constant along a row
@@ -42,3 +43,26 @@ def test_gamma_precompensation_makes_the_light_sinusoidal():
 def test_invalid_pattern_sets_are_refused_with_the_reason(kwargs, message):
     with pytest.raises(PatternError, match=message):
         PatternSet(**kwargs)
+
+
+def test_composite_rides_along_as_the_last_frame():
+    p = PatternSet(gamma=2.2)
+    pats = generate_patterns(p)
+    assert p.count == p.phase_shift_count + 1 == len(p.names()) == pats.shape[0] == 17
+    assert p.single_shot_index == 16 and PatternSet(single_shot="paper").single_shot_index == 12
+    light = (pats[16] / 255.0) ** 2.2
+    fx, fy = p.code_frequencies
+    x, y = np.arange(p.width)[None, :], np.arange(p.height)[:, None]
+    expected = 0.5 + 0.125 * (np.cos(2 * np.pi * 100 * x / p.width) + np.cos(2 * np.pi * (fx * x / p.width + fy * y / p.height)))
+    assert np.abs(light - expected).max() < 0.01  # within 8-bit quantization after gamma
+    assert fx * 32 == 100  # the code's phase moves 2 pi / 32 per carrier fringe
+
+
+def test_a_set_written_before_the_composite_is_the_papers():
+    d = PatternSet().to_dict()
+    del d["single_shot"]
+    assert PatternSet.from_dict(d).single_shot == "paper"
+    with pytest.raises(PatternError, match="single_shot"):
+        PatternSet(single_shot="gray")
+    with pytest.raises(PatternError, match="vertical"):
+        PatternSet(orientation="horizontal")

@@ -7,7 +7,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Header
 
 from fpp_msgs_py import Frames, Qos, Topics, cloud_to_xyz, header_at, image_to_numpy, numpy_to_image, stamp_ns
-from fpp_nodes.core.patterns import line_image, pattern_lines
+from fpp_nodes.core.patterns import pattern_images
 from fpp_nodes.core.simulation import Rig, make_scene, render
 
 
@@ -92,7 +92,7 @@ def test_broken_sequences_over_dds_are_dropped_never_mixed(ros_graph):
     rig = Rig()
     patterns = rig.pattern_set()
     capture = render(rig, make_scene(rig, "objects", 8), patterns, np.random.default_rng(8))
-    lines = [line_image(patterns, line) for line in pattern_lines(patterns)]
+    lines = pattern_images(patterns)
     pattern_pub = robot.node.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)
     camera_pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
     clouds = collect(robot, Topics.POINTS, PointCloud2)

@@ -160,7 +160,7 @@ def test_a_data_set_from_a_recorded_bag(tmp_path):
     from fpp_msgs_py import header_at, numpy_to_image
     from fpp_nodes.bag import BagWriter
     from fpp_nodes.core.calibration import Calibration, default_calibration_path
-    from fpp_nodes.core.patterns import line_image, pattern_lines
+    from fpp_nodes.core.patterns import pattern_images
     from fpp_nodes.core.simulation import Rig, make_scene, render
     from training.dataset import write_bag_set
     rig = Rig()
@@ -172,7 +172,7 @@ def test_a_data_set_from_a_recorded_bag(tmp_path):
     for k in [5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15] + list(range(16)):  # joins mid-sequence, then one whole
         header = header_at(t, "camera_optical_frame")
         writer.write("/projector/pattern", "sensor_msgs/msg/Image", t,
-                     serialize_message(numpy_to_image(line_image(patterns, pattern_lines(patterns)[k]), header)))
+                     serialize_message(numpy_to_image(pattern_images(patterns)[k], header)))
         writer.write("/camera/image_raw", "sensor_msgs/msg/Image", t + 1000, serialize_message(numpy_to_image(capture.images[k], header)))
         t += 33_000_000
     writer.close()

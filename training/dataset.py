@@ -16,6 +16,7 @@ On disk (a folder per set and split, one file per sample):
                          families/surface: phase  float32 (H, W)     multi-shot absolute phase, NaN invalid
                                            fringe float16 (2, H, W)  its numerator and denominator
                                            family str                the scene family
+                                           code   float16 (2, H, W)  the composite's code grating (code_targets)
 
 The uint16 encoding holds 1000.01-1655.35 mm in 0.01 mm steps (rounding adds 0.003 mm RMS).
 """
@@ -31,6 +32,7 @@ import yaml
 from tqdm import tqdm
 
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
+from fpp_nodes.core.patterns import CODE_ORDERS
 from fpp_nodes.core.phase import sin_cos_sums
 from fpp_nodes.core.reconstruct import PspReconstructor, full_scale
 from fpp_nodes.core.simulation import Rig, make_scene, random_rig, render
@@ -38,7 +40,8 @@ from fpp_nodes.core.simulation import Rig, make_scene, random_rig, render
 SPLITS = ("train", "val", "test")
 # set name -> (scene kind, paper's counts, first seed); seeds never overlap between sets or splits
 SETS = {"single": ("sculpture", (540, 60, 72), 100_000), "multi": ("objects", (630, 70, 40), 200_000),
-        "families": ("families", (1000, 120, 180), 300_000), "surface": ("families", (600, 48, 96), 400_000)}
+        "families": ("families", (1000, 120, 180), 300_000), "surface": ("families", (600, 48, 96), 400_000),
+        "composite": ("families", (360, 40, 120), 500_000)}
 # The families set spans the working volume: backgrounds anywhere in 1100-1300 mm. The surface set puts
 # the background (the work surface) at the calibration's reference depth at the image centre, any tilt:
 # one 100-fringe image cannot tell the fringe order of a surface at an unknown depth (a phase-aware
@@ -112,12 +115,25 @@ def make_sample(kind: str, seed: int, families: bool = False, surface_mm: float 
     sample = {"input": capture.images[patterns.single_shot_index],
               "label": encode_depth(rec.depth_mm), "truth": encode_depth(truth)}
     if families:
-        top = capture.images[-patterns.steps:]
+        top = capture.images[patterns.top_frequency_frames]
         s, c = sin_cos_sums(top)
         scale = 2.0 / (patterns.steps * full_scale(top.dtype))
         sample.update(phase=np.where(np.isfinite(rec.depth_mm), rec.phase, np.nan).astype(np.float32),
                       fringe=np.stack([-s * scale, c * scale]).astype(np.float16), family=kind)
+        if patterns.single_shot == "composite":
+            sample["code"] = code_targets(psp.calibration, rec.phase, rec.depth_mm, np.hypot(s, c) * scale)
     return sample
+
+
+def code_targets(calibration, phase: np.ndarray, depth_mm: np.ndarray, modulation: np.ndarray) -> np.ndarray:
+    """The composite's code grating as the multi-shot path sees it: B/2 sin psi, B/2 cos psi (float16,
+    (2, H, W), NaN where the label is untrusted), psi = the row phase at the labelled depth plus the
+    absolute carrier phase / CODE_ORDERS; B/2 because each of its gratings has half a phase-shift
+    pattern's amplitude."""
+    u = np.arange(phase.shape[1], dtype=np.float64)[None, :]
+    v = np.arange(phase.shape[0], dtype=np.float64)[:, None]
+    code = calibration.code_row_phase_at_depth(depth_mm, u, v) + phase / CODE_ORDERS
+    return np.stack([0.5 * modulation * np.sin(code), 0.5 * modulation * np.cos(code)]).astype(np.float16)
 
 
 def _write(job):
@@ -149,7 +165,7 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
            if kind == "families" else {}),
         **({"background_centre_mm": surface_mm} if surface_mm is not None else {}),
         "counts": dict(zip(SPLITS, counts)), "first_seeds": {s: seed_of(set_name, s, 0) for s in SPLITS},
-        "input": "first image of the highest frequency", "label": "multi-shot PSP depth",
+        "input": rig.pattern_set().names()[rig.pattern_set().single_shot_index], "label": "multi-shot PSP depth",
         "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},
         "rig": rig.to_dict(), "calibration": Calibration.load(calibration_path).to_dict()}, sort_keys=False))
     with ProcessPoolExecutor(workers, initializer=_init, initargs=(calibration_path,)) as pool:

@@ -23,7 +23,9 @@ import torch
 import yaml
 
 from fpp_nodes.core.calibration import Calibration
-from fpp_nodes.core.model import PhaseOrderDecoder, fringe_mask, network_input, trusted_single_shot
+from fpp_nodes.core.model import CompositeDecoder, PhaseOrderDecoder, fringe_mask, network_input, trusted_single_shot
+from fpp_nodes.core.patterns import PatternSet
+from fpp_nodes.core.simulation import SURFACE_DEPTH_MM
 
 from .dataset import load_sample, split_files
 from .train import load_checkpoint, model_from_checkpoint, predict
@@ -37,15 +39,15 @@ def sha256(path) -> str:
 
 
 SILENT_ERROR_BUDGET = 0.005  # the share of output pixels off by > 1 mm a threshold may leave, on validation
-CONFIDENCE_GRID = (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999, 0.9999)
+CONFIDENCE_GRID = (0.0, 0.25, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999, 0.9999)
+OUTPUTS = {"phase": "fringe_order", "composite": "fringe_phases"}  # other architectures: depth_mm
 
 
 @torch.no_grad()
-def choose_min_confidence(model, data: str, calibration: Calibration, limit: int = 60) -> dict:
+def choose_min_confidence(model, data: str, decoder, limit: int = 60) -> dict:
     """The lowest order confidence (most coverage) whose silent errors (output pixels off the exact
     depth by more than 1 mm) stay within SILENT_ERROR_BUDGET on the validation split: chosen on
     validation data, never on the test set."""
-    decoder = PhaseOrderDecoder(calibration)
     # per threshold, with and without the edge rule: output pixels, silent errors, exact pixels
     counts = {(c, edge): np.zeros(3) for c in CONFIDENCE_GRID for edge in (True, False)}
     for f in split_files(data, "val")[:limit]:
@@ -71,8 +73,8 @@ def choose_min_confidence(model, data: str, calibration: Calibration, limit: int
 def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | None = None) -> dict:
     ckpt = load_checkpoint(checkpoint)
     model, cfg = model_from_checkpoint(ckpt)
-    phase_aware = cfg.arch == "phase"
-    output = "fringe_order" if phase_aware else "depth_mm"
+    phase_aware = cfg.arch in OUTPUTS
+    output = OUTPUTS.get(cfg.arch, "depth_mm")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     example = torch.rand(1, 1, 480 // cfg.downsample // 32 * 32, 640 // cfg.downsample // 32 * 32)
@@ -91,16 +93,19 @@ def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | No
     dataset = yaml.safe_load((Path(cfg.data) / "dataset.yaml").read_text()) if (Path(cfg.data) / "dataset.yaml").exists() else {}
     last = ckpt["history"][-1] if ckpt["history"] else {}
     calibration = dataset.get("calibration")
+    patterns = PatternSet.from_dict(calibration["patterns"]) if calibration else None
     card = {
         "format": CARD_FORMAT, "version": 1, "model": out.name, "sha256": sha256(out),
         "architecture": cfg.arch, "width": cfg.width, "parameters": sum(p.numel() for p in model.parameters()),
         "input": {"name": "image", "shape": "N x 1 x H x W, H and W multiples of 32",
                   "normalisation": "camera image / full scale (255 for mono8, 65535 for mono16)",
-                  "content": "the first phase-shifted image of the highest fringe frequency",
+                  "content": patterns.names()[patterns.single_shot_index] if patterns else "unknown",
                   "downsample": cfg.downsample, "camera": dataset.get("calibration", {}).get("camera")},
         "output": ({"name": output, "channels": "fringe numerator, denominator (full-scale units), r (fringe "
-                    "orders from the calibration's reference-depth phase), log sigma of r (orders)"}
-                   if phase_aware else {"name": output, "units": "mm along the camera's optical axis"}),
+                    "orders from the calibration's reference-depth phase), log sigma of r (orders)"} if cfg.arch == "phase"
+                   else {"name": output, "channels": "carrier numerator, denominator, code numerator, denominator "
+                         "(full-scale units)"} if cfg.arch == "composite"
+                   else {"name": output, "units": "mm along the camera's optical axis"}),
         "rig": dataset.get("rig"), "patterns": dataset.get("calibration", {}).get("patterns"),
         "training": {"data": cfg.data, "counts": dataset.get("counts"), "epochs": ckpt["epoch"],
                      "seconds": round(ckpt["train_seconds"], 1), "config": ckpt["config"]},
@@ -110,7 +115,12 @@ def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | No
     }
     if phase_aware:
         card["calibration"] = calibration
-        card["decoding"] = choose_min_confidence(model, cfg.data, Calibration.from_dict(calibration))
+        if cfg.arch == "composite":  # the range the training scenes span: the code's orders are placed on it
+            decoder = CompositeDecoder(Calibration.from_dict(calibration), SURFACE_DEPTH_MM)
+            card["decoding"] = {"depth_range_mm": list(SURFACE_DEPTH_MM)}
+        else:
+            decoder, card["decoding"] = PhaseOrderDecoder(Calibration.from_dict(calibration)), {}
+        card["decoding"].update(choose_min_confidence(model, cfg.data, decoder))
     out.with_suffix(".yaml").write_text(yaml.safe_dump(card, sort_keys=False))
     return card
 

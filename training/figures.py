@@ -157,8 +157,8 @@ def failure_figure(models, rig: Rig, seed: int = 5) -> tuple[np.ndarray, list]:
         capture = render(rig, scene, patterns, np.random.default_rng(seed))
         image, truth = capture.images[patterns.single_shot_index], np.where(capture.valid, capture.depth_mm, np.nan)
         tiles, captions = [image, pictures.depth_colours(truth)], [name, "exact depth"]
-        for model_name, predict in models:
-            depth = predict(image)
+        for model_name, predict in models:  # each model reads its own single-shot frame (a DepthModel says which)
+            depth = predict(capture.images[patterns.input_index(getattr(predict, "reads", "paper"))])
             ok = np.isfinite(depth) & np.isfinite(truth)
             d = depth[ok] - truth[ok]
             numbers = (float(np.sqrt(np.mean(d * d))) if d.size else float("nan"),

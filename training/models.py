@@ -178,7 +178,28 @@ class PhaseOrderNet(nn.Module):
         return torch.cat([fringe, order], dim=1)
 
 
-ARCHITECTURES = ("fcn", "aen", "unet", "phase")
+class CompositeNet(nn.Module):
+    """The composite pattern's fringe analyser: from one image, the numerators and denominators of the
+    carrier's and the code grating's phases (B sin, B cos in full-scale units), each from the few
+    fringe periods around the pixel (stride-2 features, dilated convolutions for about 40 pixels of
+    context, a pixel shuffle back to full resolution). It learns to read fringes, not scenes: the
+    fringe order and the depth follow from physics (fpp_nodes.core.model.CompositeDecoder).
+    Output (B, 4, H, W): carrier numerator, denominator, code numerator, denominator.
+    """
+
+    def __init__(self, width: int = 16):
+        super().__init__()
+        p = width
+        layers = [nn.Conv2d(1, p, 6, stride=2, padding=2), nn.ReLU(inplace=True)]
+        for dilation in (1, 2, 4, 2):
+            layers += [nn.Conv2d(p, p, 3, padding=dilation, dilation=dilation), nn.ReLU(inplace=True)]
+        self.net = nn.Sequential(*layers, nn.Conv2d(p, 16, 1), nn.PixelShuffle(2))
+
+    def forward(self, image):
+        return self.net(image)
+
+
+ARCHITECTURES = ("fcn", "aen", "unet", "phase", "composite")
 
 
 def build(architecture: str, width: int = 16, dropout: float = 0.1, depth_offset: float = 1200.0,
@@ -191,6 +212,8 @@ def build(architecture: str, width: int = 16, dropout: float = 0.1, depth_offset
         return FCN(width, dropout, depth_offset, depth_scale)
     if architecture == "phase":
         return PhaseOrderNet(width)
+    if architecture == "composite":
+        return CompositeNet(width)
     raise ValueError(f"architecture must be one of {', '.join(ARCHITECTURES)}, got {architecture!r}")
 
 

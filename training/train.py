@@ -31,7 +31,8 @@ from tqdm import tqdm
 from fpp_nodes.core.pictures import depth_colours
 
 from fpp_nodes.core.calibration import Calibration
-from fpp_nodes.core.model import PhaseOrderDecoder, network_input
+from fpp_nodes.core.model import CompositeDecoder, PhaseOrderDecoder, network_input
+from fpp_nodes.core.simulation import SURFACE_DEPTH_MM
 
 from .dataset import load_phase_targets, load_sample, split_files
 from .models import ARCHITECTURES, build, pad_to_stride
@@ -55,6 +56,7 @@ class TrainConfig:
     loss: str = "mse"
     augment: bool = True
     limit: int = 0  # use only the first N training samples (0: all)
+    crop: int = 0  # train on random square crops of this size (0: whole images); composite only
     seed: int = 0
 
     def __post_init__(self):
@@ -65,8 +67,10 @@ class TrainConfig:
         for name in ("width", "downsample", "epochs", "batch_size", "patience"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.arch == "phase" and self.downsample != 1:
-            raise ValueError("the phase-aware network (arch phase) needs the full resolution: --downsample 1")
+        if self.arch in ("phase", "composite") and self.downsample != 1:
+            raise ValueError(f"the phase-aware networks (arch {self.arch}) need the full resolution: --downsample 1")
+        if self.crop % 32:
+            raise ValueError(f"crop must be a multiple of 32, got {self.crop}")
 
 
 def shrink(image: np.ndarray, factor: int, depth: bool = False) -> np.ndarray:
@@ -132,6 +136,51 @@ class FringePhaseSet(Dataset):
                 torch.from_numpy(label)[None])
 
 
+class CompositeSet(Dataset):
+    """(image [0, 1], carrier and code numerators/denominators (4, H, W), label mm) tensors for the
+    composite network, random crops of crop pixels (0: whole images) when training."""
+
+    def __init__(self, files, augment: bool = False, crop: int = 0, seed: int = 0):
+        self.items = []
+        for f in files:
+            image, label, _ = load_sample(f)
+            with np.load(f, allow_pickle=False) as z:
+                if "code" not in z:
+                    raise ValueError(f"{f} has no code targets (make a set with the composite pattern: --set composite)")
+                targets = np.concatenate([z["fringe"], z["code"]])
+            self.items.append((image, targets, label))
+        self.augment, self.crop = augment, crop
+        self.rng = np.random.default_rng(seed)
+
+    def __len__(self):  # with crops, an epoch still covers about every pixel once
+        return len(self.items) * (max(1, self.items[0][0].size // self.crop ** 2) if self.crop and self.items else 1)
+
+    def __getitem__(self, i):
+        image, targets, label = self.items[i % len(self.items)]
+        if self.crop:
+            y = 2 * self.rng.integers(0, (image.shape[0] - self.crop) // 2 + 1)  # even: the stride-2 grid
+            x = 2 * self.rng.integers(0, (image.shape[1] - self.crop) // 2 + 1)
+            window = (slice(y, y + self.crop), slice(x, x + self.crop))
+            image, targets, label = image[window], targets[(slice(None),) + window], label[window]
+        image, targets = network_input(image), targets.astype(np.float32)
+        if self.augment:  # photometric only; the fringe amplitudes follow the gain
+            gain = self.rng.uniform(0.8, 1.2)
+            image = image * gain + self.rng.uniform(-0.04, 0.04)
+            image = image + self.rng.normal(0, self.rng.uniform(0, 0.008), image.shape)
+            image, targets = np.clip(image, 0, 1).astype(np.float32), targets * np.float32(gain)
+        return torch.from_numpy(image)[None], torch.from_numpy(targets), torch.from_numpy(label)[None]
+
+
+COMPOSITE_WEIGHTS = (1.0, 1.0, 4.0, 4.0)  # the code grating has half the carrier's amplitude: equal weight in phase
+
+
+def composite_loss(pred, targets):
+    """Squared error of the four numerators/denominators over the pixels whose label is trusted."""
+    valid = torch.isfinite(targets).all(dim=1)
+    weights = torch.tensor(COMPOSITE_WEIGHTS, device=pred.device)[None, :, None, None]
+    return 1000.0 * (weights * (pred - targets.nan_to_num()) ** 2).sum(dim=1)[valid].mean()
+
+
 LOG_SIGMA_RANGE = (np.log(0.01), np.log(30.0))  # orders
 
 
@@ -171,14 +220,16 @@ VALIDATION_CONFIDENCE = 0.99  # for the per-epoch numbers only; export chooses t
 
 
 @torch.no_grad()
-def evaluate_phase(model, loader, device, decoder: PhaseOrderDecoder) -> dict:
+def evaluate_phase(model, loader, device, decoder) -> dict:
     """Loss; RMSE (mm) against the label, coverage of it and the share of pixels off by more than
-    1 mm, over the pixels confident at VALIDATION_CONFIDENCE."""
+    1 mm, over the pixels confident at VALIDATION_CONFIDENCE (the phase-order or composite network)."""
     model.eval()
     losses, sq, n, wrong, n_label = [], 0.0, 0, 0, 0
-    for image, fringe, orders, label in loader:
+    for image, *targets, label in loader:
         pred = predict(model, image.to(device))
-        losses.append(phase_order_loss(pred, fringe.to(device), orders.to(device)).item())
+        targets = [t.to(device) for t in targets]
+        losses.append((composite_loss(pred, *targets) if isinstance(decoder, CompositeDecoder)
+                       else phase_order_loss(pred, *targets)).item())
         for out, ref in zip(pred.cpu().numpy(), label[:, 0].numpy()):
             depth, _ = decoder(out, VALIDATION_CONFIDENCE)
             ok = np.isfinite(depth) & np.isfinite(ref)
@@ -270,12 +321,17 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     val_files, test_files = split_files(config.data, "val"), split_files(config.data, "test")
     if not train_files or not val_files:
         raise ValueError(f"{config.data} has no train or val samples (make them with python -m training.dataset)")
-    phase_aware = config.arch == "phase"
+    phase_aware = config.arch in ("phase", "composite")
     if phase_aware:
         calibration = Calibration.from_dict(yaml.safe_load((Path(config.data) / "dataset.yaml").read_text())["calibration"])
-        decoder = PhaseOrderDecoder(calibration)
-        train_set = FringePhaseSet(train_files, calibration, config.augment, config.seed + rank)
-        val_set = FringePhaseSet(val_files, calibration)
+        if config.arch == "composite":
+            decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+            train_set = CompositeSet(train_files, config.augment, config.crop, config.seed + rank)
+            val_set = CompositeSet(val_files)
+        else:
+            decoder = PhaseOrderDecoder(calibration)
+            train_set = FringePhaseSet(train_files, calibration, config.augment, config.seed + rank)
+            val_set = FringePhaseSet(val_files, calibration)
     else:
         train_set = FringeDepthSet(train_files, config.downsample, config.augment, config.seed + rank)
         val_set = FringeDepthSet(val_files, config.downsample)
@@ -307,8 +363,12 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
         for image, *targets in tqdm(loader, desc=f"epoch {epoch}/{config.epochs}", leave=False, disable=None if rank == 0 else True):
             optimizer.zero_grad()
             pred = predict(model, image.to(device))
-            loss = (phase_order_loss(pred, *(t.to(device) for t in targets[:2])) if phase_aware
-                    else masked_loss(pred, targets[0].to(device), config.loss))
+            if config.arch == "composite":
+                loss = composite_loss(pred, targets[0].to(device))
+            elif phase_aware:
+                loss = phase_order_loss(pred, *(t.to(device) for t in targets[:2]))
+            else:
+                loss = masked_loss(pred, targets[0].to(device), config.loss)
             loss.backward()
             optimizer.step()
             total, batches = total + loss.item(), batches + 1
@@ -329,7 +389,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
             shown = predict(net, showcase[0][None].to(device))[0].cpu().numpy()
         shown = decoder(shown, VALIDATION_CONFIDENCE)[0] if phase_aware else shown[0]
         cv2.imwrite(str(out / "epochs" / f"epoch_{epoch:04d}.png"),
-                    np.hstack([depth_colours(showcase[3 if phase_aware else 1][0].numpy()), depth_colours(shown)]))
+                    np.hstack([depth_colours(showcase[-1 if phase_aware else 1][0].numpy()), depth_colours(shown)]))
         save_checkpoint(out / "last.pt", model, optimizer, scheduler, config, epoch, history, seconds)
         if val_loss < best:
             best = val_loss

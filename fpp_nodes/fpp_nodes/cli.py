@@ -1,5 +1,6 @@
 """`fpp`: fringe projection profilometry without ROS.
 
+    fpp patterns    the pattern set as PNG files at the projector's resolution, in projection order
     fpp simulate    rig + scene -> fringe images + ground truth
     fpp calibrate   captures of planes at known depths -> calibration file
     fpp reconstruct fringe images -> depth (.npy/.tiff), point cloud (.ply), pictures (.png)
@@ -21,7 +22,7 @@ from tqdm import tqdm
 from .core import io, pictures
 from .core.calibration import Calibration, CalibrationError, CameraIntrinsics, back_project
 from .core.metrics import depth_errors
-from .core.patterns import PatternSet
+from .core.patterns import PatternSet, generate_patterns
 from .core.reconstruct import PspReconstructor, QualityLimits, Reconstruction, reconstruct_ftp
 from .core.simulation import Rig, SCENE_KINDS, make_scene, render, scene_from_file
 from .core.workflow import (CALIBRATION_DEPTHS_MM, calibrate_from_planes, fringe_depth_mm, held_out_scenes, score,
@@ -40,7 +41,24 @@ def _write_capture(folder: Path, capture, rig: Rig, patterns: PatternSet, scene_
         {"camera": rig.camera().to_dict(), "patterns": patterns.to_dict()}, sort_keys=False))
     (folder / "capture.yaml").write_text(yaml.safe_dump(
         {"scene": scene_name, "seed": seed, "rig": rig.to_dict(),
-         "images": [f"frequency {f}, step {j}" for f, j in patterns.order()]}, sort_keys=False))
+         "images": patterns.names()}, sort_keys=False))
+
+
+def cmd_patterns(args) -> None:
+    """What a projector's pattern memory or a display window shows: every frame of a sequence."""
+    patterns = Calibration.load(args.calibration).patterns if args.calibration else Rig().pattern_set()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    names = []
+    for i, image in enumerate(generate_patterns(patterns)):
+        names.append(f"pattern_{i:02d}.png")
+        if not cv2.imwrite(str(out / names[-1]), image):
+            raise OSError(f"cannot write {out / names[-1]}")
+    (out / "patterns.yaml").write_text(yaml.safe_dump(
+        {"patterns": patterns.to_dict(), "files": [{"file": f, "shows": n} for f, n in zip(names, patterns.names())]},
+        sort_keys=False))
+    print(f"wrote {len(names)} patterns ({patterns.width}x{patterns.height}, {patterns.bit_depth}-bit, in projection "
+          f"order) and patterns.yaml to {out}")
 
 
 def cmd_simulate(args) -> None:
@@ -98,7 +116,9 @@ def _reconstruct(images: np.ndarray, calibration: Calibration, method: str, limi
     index = calibration.patterns.single_shot_index if len(images) > 1 else 0
     if method == "cnn":  # what cnn_depth does, offline
         from .core.model import DepthModel, default_model_path
-        depth, confidence = DepthModel(model_path or default_model_path()).infer(images[index])
+        model = DepthModel(model_path or default_model_path())
+        model.check_patterns(calibration.patterns)
+        depth, confidence = model.infer(images[index])
         quality = confidence if confidence is not None else np.isfinite(depth).astype(np.float32)
         return Reconstruction(depth, back_project(depth, calibration.camera), np.isfinite(depth), quality,
                               np.full(depth.shape, np.nan, np.float32))
@@ -230,6 +250,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fpp", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
 
+    p = sub.add_parser("patterns", help="every pattern of the set as a PNG at the projector's resolution")
+    p.add_argument("--calibration", help="whose pattern set (default: the simulated rig's)")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=cmd_patterns)
+
     p = sub.add_parser("simulate", help="render fringe images of a scene with the simulated rig")
     p.add_argument("--scene", default="sculpture",
                    help=f"{', '.join(SCENE_KINDS)}, or a height map file (.npy, 16-bit PNG, TIFF; mm)")
@@ -253,8 +278,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("images", nargs="+", help="a folder of fringe_*.png/.tif, or the image files in projection order")
     p.add_argument("--calibration", required=True)
     p.add_argument("--method", choices=("psp", "ftp", "cnn"), default="psp",
-                   help="psp: all images; ftp and cnn: one image (the first of the highest frequency; "
-                        "cnn runs the single-shot network as cnn_depth does)")
+                   help="psp: all images; ftp and cnn: one image (the calibration's single-shot frame: the "
+                        "composite, or the paper's first image of the highest frequency; cnn runs the "
+                        "single-shot network as cnn_depth does)")
     p.add_argument("--model", help="with --method cnn: an ONNX model with its card (default: the shipped one)")
     p.add_argument("--min-modulation", type=float, default=QualityLimits.min_modulation)
     p.add_argument("--max-depth-step", type=float, default=QualityLimits.max_depth_step_mm)

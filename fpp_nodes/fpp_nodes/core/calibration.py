@@ -166,12 +166,27 @@ def back_project(depth: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
 
 @dataclass
 class Calibration:
-    """Everything needed to turn a fringe sequence into depth: camera, model, pattern set."""
+    """Everything needed to turn a fringe sequence into depth: camera, model, pattern set; with the
+    composite single-shot pattern also code_model, which tells the code grating's row phase (its phase
+    less the carrier's absolute phase / CODE_ORDERS) at any depth: that row phase plus the carrier's
+    phase is the phase of a grating tilted across the baseline, so the same rational form holds it
+    as well conditioned as the carrier (the row phase alone hardly moves with depth, and a fit of it
+    alone amplifies noise). See code_row_phase_at_depth."""
 
     camera: CameraIntrinsics
     model: RationalModel
     patterns: PatternSet
     reference_depth_mm: float  # where the background sits; FTP uses it to choose the global fringe order
+    code_model: RationalModel | None = None
+
+    def __post_init__(self):
+        if (self.patterns.single_shot == "composite") != (self.code_model is not None):
+            raise CalibrationError("a calibration has a code model exactly when its patterns have the composite "
+                                   f"single-shot frame (single_shot is {self.patterns.single_shot!r})")
+
+    def code_row_phase_at_depth(self, depth, u, v):
+        """The code grating's row phase a pixel sees at a depth (composite calibrations only)."""
+        return self.code_model.phase_at_depth(depth, u, v) - self.model.phase_at_depth(depth, u, v)
 
     def to_dict(self) -> dict:
         return {
@@ -182,6 +197,8 @@ class Calibration:
             "model": {"terms": list(TERMS), "c": self.model.c.tolist(), "d": self.model.d.tolist()},
             "patterns": self.patterns.to_dict(),
             "reference_depth_mm": float(self.reference_depth_mm),
+            **({"code_model": {"c": self.code_model.c.tolist(), "d": self.code_model.d.tolist()}}
+               if self.code_model is not None else {}),
         }
 
     @classmethod
@@ -200,13 +217,14 @@ class Calibration:
             model = RationalModel(d["model"]["c"], d["model"]["d"])
             patterns = PatternSet.from_dict(d["patterns"])
             reference = float(d["reference_depth_mm"])
+            code_model = RationalModel(d["code_model"]["c"], d["code_model"]["d"]) if "code_model" in d else None
         except KeyError as e:
             raise CalibrationError(f"calibration is missing {e.args[0]!r}") from None
         except PatternError as e:
             raise CalibrationError(str(e)) from None
         except (TypeError, ValueError) as e:
             raise CalibrationError(f"calibration has a malformed value: {e}") from None
-        return cls(camera, model, patterns, reference)
+        return cls(camera, model, patterns, reference, code_model)
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.to_dict(), sort_keys=False)

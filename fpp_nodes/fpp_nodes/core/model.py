@@ -13,7 +13,8 @@ import cv2
 import numpy as np
 import yaml
 
-from .calibration import Calibration
+from .calibration import Calibration, CalibrationError
+from .patterns import CODE_ORDERS, PatternError, PatternSet
 from .reconstruct import QualityLimits, depth_terms, drop_flying_pixels, full_scale
 
 STRIDE = 32
@@ -60,6 +61,10 @@ class DepthModel:
         actual = hashlib.sha256(path.read_bytes()).hexdigest()
         if actual != expected_sha:
             raise ModelError(f"model {path} does not match its card: sha256 {actual[:12]}... != {str(expected_sha)[:12]}...")
+        try:
+            self.reads = PatternSet.from_dict(self.card["patterns"]).single_shot  # which single-shot frame
+        except (KeyError, TypeError, PatternError) as e:
+            raise ModelError(f"model card {card_path} lacks a valid pattern set ({type(e).__name__}: {e})") from None
         available = ort.get_available_providers()
         missing = [p for p in providers if p not in available]
         if missing:
@@ -73,15 +78,24 @@ class DepthModel:
         self.providers = self.session.get_providers()
         self.output = self.session.get_outputs()[0].name
         self.decoder = None
-        if self.output == "fringe_order":  # a phase-aware model: its card holds its calibration
+        if self.output in ("fringe_order", "fringe_phases"):  # a phase-aware model: its card holds its calibration
             try:
-                self.decoder = PhaseOrderDecoder(Calibration.from_dict(self.card["calibration"]))
+                calibration = Calibration.from_dict(self.card["calibration"])
                 self.min_confidence = float(self.card["decoding"]["min_confidence"])
-            except (KeyError, TypeError, ValueError) as e:
-                raise ModelError(f"model card {card_path} lacks the calibration or threshold of a phase-aware "
+                self.decoder = (PhaseOrderDecoder(calibration) if self.output == "fringe_order" else
+                                CompositeDecoder(calibration, tuple(self.card["decoding"]["depth_range_mm"])))
+            except (KeyError, TypeError, ValueError, CalibrationError) as e:
+                raise ModelError(f"model card {card_path} lacks the calibration or decoding of a phase-aware "
                                  f"model ({type(e).__name__}: {e})") from None
             if self.downsample != 1:
                 raise ModelError(f"model card {card_path}: a phase-aware model runs at full resolution")
+
+    def check_patterns(self, patterns: PatternSet) -> None:
+        """A model reads one kind of single-shot frame (its card's pattern set): say so if the rig shows
+        another."""
+        if self.reads != patterns.single_shot:
+            raise ModelError(f"the model reads the {self.reads!r} single-shot frame but the calibration's pattern set "
+                             f"has {patterns.single_shot!r} (set its patterns' single_shot, or use a model trained for it)")
 
     def check(self, image: np.ndarray) -> None:
         if image.ndim != 2 or (image.shape[1], image.shape[0]) != self.size:
@@ -153,6 +167,56 @@ class PhaseOrderDecoder:
         ca, cb, da, db = self.terms
         depth = (ca + cb * phase) / (da + db * phase)
         confidence = order_confidence(log_sigma)
+        depth[~(confidence >= min_confidence)] = np.nan
+        return depth, confidence
+
+
+class CompositeDecoder:
+    """The composite pattern's two phases -> depth, for a calibration with a code model.
+
+    Each pixel's carrier order is one of CODE_ORDERS consecutive orders that span the working range
+    (depth_range_mm, with equal slack at both ends); the code phase says which: it is the row phase
+    plus the absolute carrier phase / CODE_ORDERS, so each candidate order predicts it 2 pi /
+    CODE_ORDERS apart from the next. The row phase is taken at the reference depth, then again at the
+    chosen order's depth, twice (it moves < 0.7 rad over the range). Confidence is how well the code agrees
+    with the chosen order: 1 exactly, 0 half-way to the next order; depth is NaN below min_confidence.
+    """
+
+    def __init__(self, calibration: Calibration, depth_range_mm: tuple[float, float]):
+        if calibration.code_model is None:
+            raise ModelError("the composite decoder needs a calibration made with the composite pattern (a code model)")
+        cam = calibration.camera
+        u = np.arange(cam.width, dtype=np.float64)[None, :]
+        v = np.arange(cam.height, dtype=np.float64)[:, None]
+        ends = [np.broadcast_to(calibration.model.phase_at_depth(z, u, v), (cam.height, cam.width)) for z in depth_range_mm]
+        span = np.abs(ends[1] - ends[0]) / (2 * np.pi)
+        if span.max() > CODE_ORDERS - 1:
+            raise ModelError(f"the working range {depth_range_mm[0]:g}-{depth_range_mm[1]:g} mm spans up to {span.max():.1f} "
+                             f"fringe orders; the composite's code tells {CODE_ORDERS} apart")
+        slack = (CODE_ORDERS - span) / 2 * (2 * np.pi)
+        self.lowest = (np.minimum(ends[0], ends[1]) - slack).astype(np.float32)
+        self.reference_row = np.broadcast_to(
+            calibration.code_row_phase_at_depth(calibration.reference_depth_mm, u, v), (cam.height, cam.width)).astype(np.float32)
+        self.terms = depth_terms(calibration)
+        self.code_terms = [np.ascontiguousarray(np.broadcast_to(t, (cam.height, cam.width)), np.float32)
+                           for t in calibration.code_model.linear_in_phase(u, v)]
+
+    def __call__(self, out: np.ndarray, min_confidence: float) -> tuple[np.ndarray, np.ndarray]:
+        """out: (4, H, W) carrier numerator, denominator, code numerator, denominator."""
+        num, den, code_num, code_den = (np.ascontiguousarray(c, np.float32) for c in out)
+        two_pi, k = np.float32(2 * np.pi), np.float32(CODE_ORDERS)
+        carrier, code = cv2.phase(den, num), cv2.phase(code_den, code_num)
+        lowest = carrier + two_pi * np.ceil((self.lowest - carrier) / two_pi)  # the lowest candidate's phase
+        ca, cb, da, db = self.terms
+        qa, qb, pa, pb = self.code_terms
+        row = self.reference_row
+        for _ in range(3):  # from the reference depth the row phase is up to 3 orders' worth off the
+            left = code - row - lowest / k  # code, then < 0.1 rad, then exact: 2 pi j / K for the j-th
+            phase = lowest + two_pi * np.mod(np.rint(left * (k / two_pi)), k)  # candidate, if the code is right
+            depth = (ca + cb * phase) / (da + db * phase)
+            row = (qa - depth * pa) / (depth * pb - qb) - phase  # the row phase at that depth
+        residual = np.mod(code - row - phase / k + np.float32(np.pi), two_pi) - np.float32(np.pi)
+        confidence = np.maximum(1 - np.abs(residual) * (k / np.float32(np.pi)), 0)
         depth[~(confidence >= min_confidence)] = np.nan
         return depth, confidence
 

@@ -4,12 +4,29 @@
 
 x is the projector column (vertical fringes) or row (horizontal fringes), L the projector width or
 height, f the number of fringes across the pattern, N the number of phase-shift steps.
+
+The single-shot image is either the paper's (the first step of the highest frequency, which carries
+no fringe order) or this sensor's composite, shown as one more frame after the phase-shift set:
+
+    I(x, y) = I_0 [1 + a cos(phi) + a cos(psi)],   psi = 2 pi (f_max x / (K W) + g y / H)
+
+the highest-frequency carrier plus a code grating whose phase grows by 2 pi / K per carrier fringe
+across the projector (K = CODE_ORDERS) and which is nearly horizontal (g fringes down the pattern),
+so its spectral lobe sits far from the carrier's and from the albedo's. A camera pixel sees the
+projector row y at almost the same place at every depth (the baseline is horizontal), so once y is
+known from the calibration, psi tells the carrier's fringe order modulo K. K orders span the whole
+working range, so the order is absolute.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, asdict
 
 import numpy as np
+
+
+SINGLE_SHOT_KINDS = ("composite", "paper")
+CODE_ORDERS = 32  # carrier fringe orders the composite's code tells apart: the working range is 28.4
+COMPOSITE_AMPLITUDE = 0.25  # a of each grating, so the composite spans 0 .. 2 I_0
 
 
 class PatternError(ValueError):
@@ -31,14 +48,26 @@ class PatternSet:
     orientation: str = "vertical"
     bit_depth: int = 8
     gamma: float = 2.2
+    single_shot: str = "composite"
 
     def __post_init__(self):
         object.__setattr__(self, "frequencies", tuple(int(f) for f in self.frequencies))
         validate_pattern_set(self)
 
     @property
-    def count(self) -> int:
+    def phase_shift_count(self) -> int:
+        """F * N: the phase-shift images, which the multi-shot path reads."""
         return len(self.frequencies) * self.steps
+
+    @property
+    def top_frequency_frames(self) -> slice:
+        """The phase-shift images of the highest frequency within a sequence."""
+        return slice(self.phase_shift_count - self.steps, self.phase_shift_count)
+
+    @property
+    def count(self) -> int:
+        """Frames per sequence: the phase-shift set, then the composite when there is one."""
+        return self.phase_shift_count + (self.single_shot == "composite")
 
     @property
     def period_axis_length(self) -> int:
@@ -51,16 +80,32 @@ class PatternSet:
 
     @property
     def single_shot_index(self) -> int:
-        """Which pattern the single-shot path sees: the first step of the highest frequency (the paper's input)."""
-        return (len(self.frequencies) - 1) * self.steps
+        """Which frame the single-shot path sees (input_index of this set's single_shot)."""
+        return self.input_index(self.single_shot)
+
+    def input_index(self, kind: str) -> int:
+        """Where a network reading this kind of single-shot frame finds it in a sequence: the composite
+        (last), or the paper's input, the first step of the highest frequency (every set has it)."""
+        if kind == "paper":
+            return self.top_frequency_frames.start
+        if kind != "composite" or self.single_shot != "composite":
+            raise PatternError(f"a {self.single_shot!r} pattern set has no {kind!r} single-shot frame")
+        return self.phase_shift_count
+
+    @property
+    def code_frequencies(self) -> tuple[float, float]:
+        """The composite code grating's fringes across the width and down the height (f_max / K, g):
+        g gives it about the carrier's period in projector pixels."""
+        return self.frequencies[-1] / CODE_ORDERS, float(max(1, round(self.height * self.frequencies[-1] / self.width)))
 
     def shifts(self) -> np.ndarray:
         """delta_j = 2 pi j / N for j = 0 .. N-1."""
         return 2.0 * np.pi * np.arange(self.steps) / self.steps
 
-    def order(self) -> list[tuple[int, int]]:
-        """(frequency, step) of each pattern in projection order."""
-        return [(f, j) for f in self.frequencies for j in range(self.steps)]
+    def names(self) -> list[str]:
+        """A name for each frame in projection order."""
+        names = [f"frequency {f}, step {j}" for f in self.frequencies for j in range(self.steps)]
+        return names + ["single-shot composite"] * (self.single_shot == "composite")
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -69,8 +114,9 @@ class PatternSet:
 
     @classmethod
     def from_dict(cls, d: dict) -> "PatternSet":
+        """A set written before the composite existed has no single_shot: it is the paper's."""
         try:
-            return cls(**d)
+            return cls(**{"single_shot": "paper", **d})
         except TypeError as e:
             raise PatternError(f"pattern set: {e}") from None
 
@@ -97,6 +143,10 @@ def validate_pattern_set(p: PatternSet) -> None:
             f"the pattern has {p.period_axis_length}")
     if not p.gamma > 0:
         raise PatternError(f"gamma must be > 0, got {p.gamma}")
+    if p.single_shot not in SINGLE_SHOT_KINDS:
+        raise PatternError(f"single_shot must be one of {', '.join(SINGLE_SHOT_KINDS)}, got {p.single_shot!r}")
+    if p.single_shot == "composite" and p.orientation != "vertical":
+        raise PatternError("the composite single-shot pattern needs vertical fringes (its code runs across the baseline)")
 
 
 def fringe_value(p: PatternSet, frequency: int, step: int, x: np.ndarray) -> np.ndarray:
@@ -113,19 +163,26 @@ def pattern_dtype(p: PatternSet):
     return np.uint8 if p.bit_depth == 8 else np.uint16
 
 
-def pattern_lines(p: PatternSet) -> np.ndarray:
-    """Every pattern's profile across the fringes, shape (count, L): a pattern is its line repeated
-    along the fringes, so the line is all a projector or a simulated camera needs."""
+def composite_pattern(p: PatternSet) -> np.ndarray:
+    """The composite single-shot pattern (module docstring), height x width, quantized like the others."""
+    fx, fy = p.code_frequencies
+    x = np.arange(p.width, dtype=np.float64)[None, :]
+    y = np.arange(p.height, dtype=np.float64)[:, None]
+    radiance = 0.5 + 0.5 * COMPOSITE_AMPLITUDE * (np.cos(2.0 * np.pi * p.frequencies[-1] * x / p.width) +
+                                                  np.cos(2.0 * np.pi * (fx * x / p.width + fy * y / p.height)))
+    return np.round(p.max_value * radiance ** (1.0 / p.gamma)).astype(pattern_dtype(p))
+
+
+def pattern_images(p: PatternSet) -> list[np.ndarray]:
+    """What the projector shows, in projection order: each phase-shift pattern as its profile across
+    the fringes (1 x L for vertical fringes, L x 1 for horizontal; the pattern is that line repeated,
+    so broadcast it to height x width to display), then the composite as a full image."""
     x = np.arange(p.period_axis_length)
-    return np.stack([fringe_value(p, f, j, x) for f, j in p.order()]).astype(pattern_dtype(p))
-
-
-def line_image(p: PatternSet, line: np.ndarray) -> np.ndarray:
-    """The pattern as the 2-D image a projector shows: 1 x L for vertical fringes, L x 1 for horizontal
-    (broadcast it to height x width to display)."""
-    return line[None, :] if p.orientation == "vertical" else line[:, None]
+    lines = [fringe_value(p, f, j, x).astype(pattern_dtype(p)) for f in p.frequencies for j in range(p.steps)]
+    images = [line[None, :] if p.orientation == "vertical" else line[:, None] for line in lines]
+    return images + [composite_pattern(p)] * (p.single_shot == "composite")
 
 
 def generate_patterns(p: PatternSet) -> np.ndarray:
     """All patterns, shape (count, height, width), uint8 or uint16, in projection order."""
-    return np.stack([np.broadcast_to(line_image(p, line), (p.height, p.width)) for line in pattern_lines(p)])
+    return np.stack([np.broadcast_to(image, (p.height, p.width)) for image in pattern_images(p)])

@@ -140,7 +140,7 @@ def ftp_wrapped_phase(image: np.ndarray, vertical_fringes: bool = True, band: fl
     """Takeda's Fourier-transform profilometry on one fringe image.
 
     Keeps the spectral lobe around the positive carrier (found as the strongest peak away from DC
-    along the axis across the fringes), with a Hann window of half-width band * carrier, and returns
+    near the axis across the fringes), with a Hann window of half-width band * carrier, and returns
     (wrapped phase in [0, 2 pi), lobe amplitude). The phase grows along +x (or +y), so it equals the
     projector phase where the projector phase grows along +x too.
     """
@@ -154,7 +154,7 @@ def ftp_wrapped_phase(image: np.ndarray, vertical_fringes: bool = True, band: fl
     spectrum = np.fft.fft2(img - img.mean())
     fx = np.fft.fftfreq(w) * w  # cycles per image width
     fy = np.fft.fftfreq(h) * h
-    row_power = np.abs(spectrum).sum(axis=0)
+    row_power = np.abs(spectrum[np.abs(fy) <= h / 16]).sum(axis=0)  # near the fx axis: not the composite's code
     search = fx >= 2.0
     if not search.any():
         raise PhaseError("image too narrow to find a fringe carrier")
@@ -163,4 +163,26 @@ def ftp_wrapped_phase(image: np.ndarray, vertical_fringes: bool = True, band: fl
     wx = np.where(np.abs(fx - carrier) < half, 0.5 * (1 + np.cos(np.pi * (fx - carrier) / half)), 0.0)
     wy = np.where(np.abs(fy) < half, 0.5 * (1 + np.cos(np.pi * fy / half)), 0.0)
     analytic = np.fft.ifft2(spectrum * wy[:, None] * wx[None, :])
+    return np.mod(np.angle(analytic), TWO_PI), 2.0 * np.abs(analytic)
+
+
+def ftp_code_phase(image: np.ndarray, band: float = 0.5):
+    """The composite pattern's code grating by FTP: the strongest spectral lobe at least 4 cycles down
+    the image (the carrier's lobe and the albedo's sit near zero there), kept with a Hann window of
+    radius band x its distance from DC. Returns (wrapped phase in [0, 2 pi), lobe amplitude). Exact on
+    smooth surfaces (a plane: about 0.002 rad), which is what the calibration needs."""
+    img = np.asarray(image, np.float64)
+    if img.ndim != 2 or min(img.shape) < 16:
+        raise PhaseError(f"FTP needs one 2-D image of at least 16x16 pixels, got shape {img.shape}")
+    h, w = img.shape
+    spectrum = np.fft.fft2(img - img.mean())
+    fx = (np.fft.fftfreq(w) * w)[None, :]
+    fy = (np.fft.fftfreq(h) * h)[:, None]
+    power = np.where(fy >= 4.0, np.abs(spectrum), 0.0)
+    peak = np.unravel_index(np.argmax(power), power.shape)
+    cx, cy = fx[0, peak[1]], fy[peak[0], 0]
+    radius = band * np.hypot(cx, cy)
+    r = np.hypot(fx - cx, fy - cy)
+    window = np.where(r < radius, 0.5 * (1 + np.cos(np.pi * r / radius)), 0.0)
+    analytic = np.fft.ifft2(spectrum * window)
     return np.mod(np.angle(analytic), TWO_PI), 2.0 * np.abs(analytic)

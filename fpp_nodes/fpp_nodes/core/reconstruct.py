@@ -59,13 +59,12 @@ def drop_flying_pixels(depth: np.ndarray, max_step: float) -> np.ndarray:
 
 
 def multi_frequency_phase(images: np.ndarray, patterns: PatternSet, limits: QualityLimits = QualityLimits()):
-    """Unwrapped phase of the highest frequency from the (F*N, H, W) stack in projection order, the
-    mask of pixels to trust (well modulated, unsaturated, consistent fringe order) and the modulation
-    of the highest frequency."""
+    """Unwrapped phase of the highest frequency from a sequence (F*N phase-shift images in projection
+    order, then the single-shot composite when the set has one), the mask of pixels to trust (well
+    modulated, unsaturated, consistent fringe order) and the modulation of the highest frequency."""
     n = patterns.steps
     if images.ndim != 3 or images.shape[0] != patterns.count:
-        raise PhaseError(f"expected {patterns.count} images ({len(patterns.frequencies)} frequencies x {n} steps), "
-                         f"got an array shaped {images.shape}")
+        raise PhaseError(f"expected {patterns.count} images ({_described(patterns)}), got an array shaped {images.shape}")
     wrapped = []
     for i in range(len(patterns.frequencies)):
         s, c = sin_cos_sums(images[i * n:(i + 1) * n])
@@ -77,12 +76,17 @@ def multi_frequency_phase(images: np.ndarray, patterns: PatternSet, limits: Qual
     scale = full_scale(images.dtype)
     valid &= modulation >= limits.min_modulation * scale
     if np.issubdtype(images.dtype, np.integer):
-        top = images[-n:]
+        top = images[patterns.top_frequency_frames]
         brightest = top[0]
         for img in top[1:]:
             brightest = cv2.max(brightest, img)
         valid &= brightest < scale  # saturated pixels clip the sinusoid
     return phase.astype(np.float32, copy=False), valid, modulation.astype(np.float32, copy=False)
+
+
+def _described(patterns: PatternSet) -> str:
+    composite = " + the single-shot composite" if patterns.single_shot == "composite" else ""
+    return f"{len(patterns.frequencies)} frequencies x {patterns.steps} steps{composite}"
 
 
 _CROSS = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
@@ -124,8 +128,7 @@ class PspReconstructor:
         expected = (cal.patterns.count, cal.camera.height, cal.camera.width)
         if images.shape != expected:
             raise PhaseError(f"expected {expected[0]} images of {expected[2]}x{expected[1]} "
-                             f"({len(cal.patterns.frequencies)} frequencies x {cal.patterns.steps} steps), "
-                             f"got an array shaped {images.shape}")
+                             f"({_described(cal.patterns)}), got an array shaped {images.shape}")
 
     def __call__(self, images: np.ndarray) -> Reconstruction:
         images = np.asarray(images)

@@ -12,12 +12,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .patterns import PatternSet, line_image, pattern_lines
+from .patterns import PatternSet, pattern_images
 
 
 def index_by_line(patterns: PatternSet) -> dict[bytes, int]:
-    """Which pattern a projector shows, from the bytes of its line image (1 x L or L x 1)."""
-    return {line_image(patterns, line).tobytes(): i for i, line in enumerate(pattern_lines(patterns))}
+    """Which pattern a projector shows, from the bytes of the image it published (patterns.pattern_images)."""
+    return {image.tobytes(): i for i, image in enumerate(pattern_images(patterns))}
 
 
 @dataclass

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from .calibration import CameraIntrinsics, RationalModel
-from .patterns import PatternSet, pattern_lines
+from .patterns import PatternSet, pattern_images
 
 
 class SimulationError(ValueError):
@@ -564,6 +564,22 @@ def projector_shadow(rig: Rig, depth: np.ndarray, cam: CameraIntrinsics, step_px
     return shadow
 
 
+def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """image sampled at fractional pixel coordinates (x, y), linear between pixel centres, the border
+    extended (cv2.remap rounds the fractions to 1/32 pixel: a 0.008 rad phase error at the carrier)."""
+    h, w = image.shape
+    x = np.clip(x, 0, w - 1)
+    y = np.clip(y, 0, h - 1)
+    x0 = np.minimum(np.floor(x).astype(np.intp), w - 2)
+    y0 = np.minimum(np.floor(y).astype(np.intp), h - 2)
+    fx, fy = x - x0, y - y0
+    flat = image.ravel()
+    i = y0 * w + x0
+    top = flat[i] * (1 - fx) + flat[i + 1] * fx
+    bottom = flat[i + w] * (1 - fx) + flat[i + w + 1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
 class SceneRenderer:
     """One scene under the rig: the geometry (where each pixel's surface point lands in the projector,
     whether the projector reaches it) is computed once, then image() renders any pattern shown.
@@ -594,12 +610,16 @@ class SceneRenderer:
         self.reflect = (rig.full_scale * rig.gain * albedo * self.lit).astype(np.float32)
         self.crop = (slice(m, m + rig.height), slice(m, m + rig.width))
 
-    def image(self, line: np.ndarray, max_value: int, vertical: bool = True,
-              rng: np.random.Generator | None = None) -> np.ndarray:
-        """What the camera captures while the projector shows the pattern with this profile line."""
+    def image(self, pattern: np.ndarray, max_value: int, rng: np.random.Generator | None = None) -> np.ndarray:
+        """What the camera captures while the projector shows this pattern: a 1 x W line (vertical
+        fringes), an H x 1 line (horizontal) or a full H x W image, as patterns.pattern_images gives."""
         rig = self.rig
-        coord = self.xp if vertical else self.yp
-        light = np.interp(coord, np.arange(len(line)), np.asarray(line, np.float64) / max_value).astype(np.float32)
+        pattern = np.asarray(pattern, np.float64) / max_value
+        if pattern.shape[0] == 1 or pattern.shape[1] == 1:
+            coord = self.xp if pattern.shape[0] == 1 else self.yp
+            light = np.interp(coord, np.arange(pattern.size), pattern.reshape(-1)).astype(np.float32)
+        else:
+            light = bilinear(pattern, self.xp, self.yp).astype(np.float32)
         level = cv2.pow(light, rig.projector_gamma)
         level *= self.reflect
         level += rig.full_scale * rig.ambient
@@ -624,5 +644,5 @@ def render(rig: Rig, scene: Scene, patterns: PatternSet, rng: np.random.Generato
     renderer = SceneRenderer(rig, scene)
     vertical = patterns.orientation == "vertical"
     capture = renderer.truth(vertical)
-    capture.images = np.stack([renderer.image(line, patterns.max_value, vertical, rng) for line in pattern_lines(patterns)])
+    capture.images = np.stack([renderer.image(image, patterns.max_value, rng) for image in pattern_images(patterns)])
     return capture

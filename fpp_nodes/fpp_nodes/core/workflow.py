@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from .calibration import Calibration, CalibrationError, CameraIntrinsics, fit_rational_model
 from .metrics import DepthErrors, depth_errors, noise_limited_depth_std
-from .patterns import PatternSet
+from .patterns import CODE_ORDERS, PatternSet
+from .phase import TWO_PI, ftp_code_phase, unwrap_spatial
 from .reconstruct import QualityLimits, Reconstruction, multi_frequency_phase
 from .simulation import Rig, make_scene, plane_scene, render
 
@@ -21,13 +23,15 @@ def calibrate_from_planes(stacks, depths_mm, camera: CameraIntrinsics, patterns:
     """Fit the rational model from fringe stacks of flat planes square to the camera at known depths
     (a plate on a translation stage). Returns (calibration, fit RMSE in mm per plane).
 
-    Every sample_step-th trusted pixel of every plane is a sample (u, v, phi, z).
+    Every sample_step-th trusted pixel of every plane is a sample (u, v, phi, z). With the composite
+    single-shot frame, the code model is fitted the same way to the row phase plus the carrier's
+    phase on each plane (calibration.Calibration).
     """
     if len(stacks) != len(depths_mm):
         raise CalibrationError(f"{len(stacks)} captures but {len(depths_mm)} depths")
     if len(set(depths_mm)) < 3:
         raise CalibrationError(f"need planes at three or more different depths, got {sorted(set(depths_mm))}")
-    samples = []
+    samples, rows, code_samples = [], [], []
     for images, z in zip(stacks, depths_mm):
         images = np.asarray(images)
         if images.shape[1:] != (camera.height, camera.width):
@@ -39,11 +43,36 @@ def calibrate_from_planes(stacks, depths_mm, camera: CameraIntrinsics, patterns:
             raise CalibrationError(f"plane at {z} mm: only {u.size} usable pixels (no fringes visible?)")
         keep = slice(None, None, sample_step)
         samples.append((u[keep], v[keep], phase[valid][keep], np.full(u[keep].size, float(z))))
+        if patterns.single_shot == "composite":
+            row = code_row_phase(images[patterns.single_shot_index], phase, valid)
+            if rows:  # the same 2 pi multiple on every plane: the row phase hardly moves with depth
+                row += TWO_PI * np.rint(np.nanmedian(rows[0] - row) / TWO_PI)
+            rows.append(row)
+            code_samples.append(row + phase)
     u, v, phase, depth = (np.concatenate(parts) for parts in zip(*samples))
     model = fit_rational_model(u, v, phase, depth)
     residuals = [float(np.sqrt(np.mean((model.depth(p, uu, vv) - z) ** 2))) for uu, vv, p, z in samples]
     reference = float(np.median(depths_mm)) if reference_depth_mm is None else float(reference_depth_mm)
-    return Calibration(camera, model, patterns, reference), residuals
+    code_model = None
+    if code_samples:
+        keep = (slice(None, None, sample_step),) * 2
+        v, u = (np.tile(a[keep].ravel(), len(code_samples)) for a in np.indices(code_samples[0].shape))
+        chi = np.concatenate([c[keep].ravel() for c in code_samples])
+        code_model = fit_rational_model(u, v, chi, np.repeat(np.asarray(depths_mm, float), chi.size // len(code_samples)))
+    return Calibration(camera, model, patterns, reference, code_model), residuals
+
+
+CODE_BORDER_PX = 24  # FTP is unreliable this near the image's and the lit area's edges
+
+
+def code_row_phase(composite: np.ndarray, phase: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The code grating's row phase on a plane (its FTP phase less the carrier's absolute phase /
+    CODE_ORDERS), unwrapped across the plane; NaN near edges and where the multi-shot phase is untrusted."""
+    code, _ = ftp_code_phase(composite)
+    row = unwrap_spatial(np.mod(code - phase / CODE_ORDERS, TWO_PI))
+    inner = cv2.erode(valid.astype(np.uint8), np.ones((2 * CODE_BORDER_PX + 1,) * 2, np.uint8),
+                      borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    return np.where(inner, row, np.nan)
 
 
 def simulated_calibration(rig: Rig, patterns: PatternSet, seed: int = 0,

@@ -1,13 +1,15 @@
 """cnn_depth: the single-shot path. One fringe image -> depth and point cloud through a trained
 network (ONNX, run with onnxruntime).
 
-Subscribes camera/image_raw (mono8/mono16: the first phase-shifted image of the highest frequency, as
-the network was trained), keeping only the newest frame (KEEP_LAST 1): under load older frames are
+Subscribes camera/image_raw (mono8/mono16: the single-shot frame the model was trained on, its card's
+pattern set: the composite by default, the paper's first image of the highest frequency for the
+paper's networks; a calibration whose pattern set differs stops the node at start), keeping only the newest frame (KEEP_LAST 1): under load older frames are
 dropped, never queued. Publishes depth/image (32FC1, metres, NaN where the image shows no usable
 fringes: shadows, dark or saturated areas), depth/camera_info and points (organized PointCloud2,
 metres), with the image's header, and its health on /diagnostics. A phase-aware model also gives
-confidence/image (32FC1: the probability that each pixel's fringe order is right; depth is NaN below
-the threshold its card holds, chosen on validation data). A frame of the wrong size or
+confidence/image (32FC1, 0-1: for the composite model how well the code agrees with the chosen fringe
+order, 1 exactly, 0 half-way to the next; for the paper-pattern phase model the probability that the
+order is right; depth is NaN below the threshold its card holds, chosen on validation data). A frame of the wrong size or
 encoding is rejected and counted; a missing, corrupt or mismatched model stops the node at start.
 Parameters: model (path; empty = the shipped default), providers (CPUExecutionProvider; CUDA where
 present), threads (onnxruntime intra-op threads), min_confidence (negative: the model card's),
@@ -51,6 +53,7 @@ class CnnDepth(Node):
         self.model = DepthModel(path, providers, threads)
         if min_confidence >= 0 and self.model.decoder is not None:
             self.model.min_confidence = min_confidence
+        self.model.check_patterns(self.calibration.patterns)
         cam = self.calibration.camera
         if (cam.width, cam.height) != self.model.size:
             raise ModelError(f"the model was trained for {self.model.size[0]}x{self.model.size[1]} images, "

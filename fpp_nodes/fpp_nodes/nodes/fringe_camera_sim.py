@@ -1,6 +1,6 @@
 """fringe_camera_sim: the simulated camera. Sees the pattern the projector shows on a synthetic scene.
 
-Subscribes projector/pattern; publishes camera/image_raw (mono8 or mono16) and camera/camera_info,
+Subscribes projector/pattern (a fringe line or a full pattern image); publishes camera/image_raw (mono8 or mono16) and camera/camera_info,
 stamped with the time of the pattern it captured, and sim/depth_truth (32FC1, metres, NaN in
 projector shadow; latched) for evaluation. A real camera driver or a bag replaces it.
 """
@@ -47,18 +47,16 @@ class FringeCameraSim(Node):
         if self.image_pub.get_subscription_count() == 0:
             return  # nobody looks: render nothing
         try:
-            line = image_to_numpy(msg)
+            pattern = image_to_numpy(msg)
         except ImageError as e:
             self.health.report("patterns rejected", f"pattern ignored: {e}")
             return
-        vertical = line.shape[0] == 1
-        length = self.rig.projector_width if vertical else self.rig.projector_height
-        if line.size != length or min(line.shape) != 1:
-            self.health.report("patterns rejected", f"pattern ignored: a {line.shape[1]}x{line.shape[0]} line does "
-                                                    f"not fit a {self.rig.projector_width}x{self.rig.projector_height} projector")
+        w, h = self.rig.projector_width, self.rig.projector_height
+        if pattern.shape not in ((1, w), (h, 1), (h, w)):
+            self.health.report("patterns rejected", f"pattern ignored: a {pattern.shape[1]}x{pattern.shape[0]} image is "
+                                                    f"neither a line nor the image of a {w}x{h} projector")
             return
-        max_value = 255 if line.dtype == np.uint8 else 65535
-        image = self.renderer.image(line.reshape(-1), max_value, vertical, self.rng)
+        image = self.renderer.image(pattern, 255 if pattern.dtype == np.uint8 else 65535, self.rng)
         header = Header(stamp=msg.header.stamp, frame_id=Frames.CAMERA)
         self.image_pub.publish(numpy_to_image(image, header))
         self.info.header = header

@@ -1,7 +1,8 @@
 """pattern_projector: shows the pattern set, one pattern per tick, and says which and when.
 
-Publishes projector/pattern (sensor_msgs/Image): the shown pattern's profile across the fringes
-(1 x L for vertical fringes, L x 1 for horizontal), stamped with the time it is shown. Continuously
+Publishes projector/pattern (sensor_msgs/Image): a phase-shift pattern as its profile across the
+fringes (1 x L for vertical fringes, L x 1 for horizontal), the single-shot composite (the last frame
+of each sequence, unless single_shot:=paper) as the full image, stamped with the time it is shown. Continuously
 by default; with continuous:=false, each call of ~/capture (std_srvs/Trigger) shows one sequence.
 """
 from __future__ import annotations
@@ -14,7 +15,7 @@ from std_srvs.srv import Trigger
 
 from fpp_msgs_py import Frames, Qos, Topics, numpy_to_image
 
-from ..core.patterns import PatternSet, line_image, pattern_lines
+from ..core.patterns import SINGLE_SHOT_KINDS, PatternSet, pattern_images
 from .common import declare, on_set, positive, run
 from .health import Health
 
@@ -30,14 +31,16 @@ class PatternProjector(Node):
             height=declare(self, "height", 800, "projector height, pixels", True),
             orientation=declare(self, "orientation", "vertical", "vertical or horizontal fringes", True),
             bit_depth=declare(self, "bit_depth", 8, "8 or 16", True),
-            gamma=declare(self, "gamma", 2.2, "projector gamma the patterns pre-compensate", True))
+            gamma=declare(self, "gamma", 2.2, "projector gamma the patterns pre-compensate", True),
+            single_shot=declare(self, "single_shot", "composite", f"single-shot frame: {' or '.join(SINGLE_SHOT_KINDS)} "
+                                "(composite: one more frame; paper: the first step of the highest frequency)", True))
         self.rate = declare(self, "rate", 30.0, "patterns per second")
         if positive(self.rate):
             raise ValueError(f"rate {positive(self.rate)}")
         self.continuous = declare(self, "continuous", True, "show sequences over and over; false: one per ~/capture call")
         on_set(self, {"rate": positive})
         self.add_post_set_parameters_callback(self._after_set)
-        self.lines = [line_image(self.patterns, line) for line in pattern_lines(self.patterns)]
+        self.lines = pattern_images(self.patterns)
         self.publisher = self.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)
         self.create_service(Trigger, "~/capture", self._on_capture)
         self.index = 0
