@@ -15,7 +15,7 @@ def results(rig, patterns, calibration):
     for name, scene, seed in held_out_scenes(rig, 4):
         capture = render(rig, scene, patterns, np.random.default_rng(seed))
         multi = psp(capture.images)
-        single = reconstruct_ftp(capture.images[patterns.top_frequency_frames.start], calibration)
+        single = reconstruct_ftp(capture.images[patterns.input_index("paper")], calibration.with_papers_single_shot())
         ftp = depth_errors(single.depth_mm, capture.depth_mm, capture.valid, fringe_depth_mm(calibration, multi.phase))
         rows.append((score(multi, capture.depth_mm, capture.valid, calibration, rig.noise_sigma, name), ftp, capture))
     return rows
@@ -58,7 +58,7 @@ def test_noise_limit_is_what_the_formula_says_on_a_plane(rig, patterns, calibrat
 def test_ftp_baseline_is_reported_and_fails_where_it_must(results, rig, patterns, calibration):
     # on a plane at the reference depth FTP is fine ...
     capture = render(rig, plane_scene(rig, calibration.reference_depth_mm), patterns, np.random.default_rng(3))
-    plane = reconstruct_ftp(capture.images[patterns.top_frequency_frames.start], calibration)
+    plane = reconstruct_ftp(capture.images[patterns.input_index("paper")], calibration.with_papers_single_shot())
     assert depth_errors(plane.depth_mm, capture.depth_mm, capture.valid).rmse_mm < 0.2
     # ... on scenes with steps taller than a fringe, spatial unwrapping loses the order
     for r, ftp, _ in results:
@@ -73,7 +73,7 @@ def test_the_papers_unet_on_fresh_scenes_of_its_family(rig, patterns, seed):
     from fpp_nodes.core.model import DepthModel, paper_model_path
     from fpp_nodes.core.simulation import make_scene
     capture = render(rig, make_scene(rig, "sculpture", seed), patterns, np.random.default_rng(seed))
-    depth = DepthModel(paper_model_path())(capture.images[patterns.top_frequency_frames.start])  # the paper's input
+    depth = DepthModel(paper_model_path())(capture.images[patterns.input_index("paper")])
     errors = depth_errors(depth, capture.depth_mm, capture.valid)
     assert errors.rmse_mm < 0.5 and errors.coverage > 0.99, errors
 

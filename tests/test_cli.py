@@ -152,3 +152,23 @@ def test_reconstruct_with_the_single_shot_network(tmp_path):
     r = fpp("reconstruct", tmp_path / "scene", "--calibration", default_calibration_path(), "--method", "cnn",
             "--model", tmp_path / "missing.onnx", "--out", tmp_path / "x")
     assert r.returncode == 2 and "does not exist" in r.stderr
+
+
+def test_patterns_writes_what_a_projector_shows(tmp_path):
+    """fpp patterns --out: every frame of a sequence at the projector's resolution, in projection order,
+    with a list naming them; the composite last. A paper calibration's set has no composite."""
+    import yaml
+    from fpp_nodes.core.calibration import Calibration, default_calibration_path
+    from fpp_nodes.core.patterns import generate_patterns
+    r = fpp("patterns", "--out", tmp_path / "p")
+    assert r.returncode == 0, r.stderr
+    listing = yaml.safe_load((tmp_path / "p" / "patterns.yaml").read_text())
+    assert [f["file"] for f in listing["files"]] == [f"pattern_{i:02d}.png" for i in range(17)]
+    assert listing["files"][-1]["shows"] == "single-shot composite"
+    expected = generate_patterns(Calibration.load(default_calibration_path()).patterns)
+    for i in (0, 13, 16):
+        image = cv2.imread(str(tmp_path / "p" / f"pattern_{i:02d}.png"), cv2.IMREAD_UNCHANGED)
+        assert image.shape == (800, 1280) and np.array_equal(image, expected[i])
+    Calibration.load(default_calibration_path()).with_papers_single_shot().save(tmp_path / "paper.yaml")
+    assert fpp("patterns", "--calibration", tmp_path / "paper.yaml", "--out", tmp_path / "q").returncode == 0
+    assert len(list((tmp_path / "q").glob("pattern_*.png"))) == 16

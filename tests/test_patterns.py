@@ -53,9 +53,9 @@ def test_composite_rides_along_as_the_last_frame():
     light = (pats[16] / 255.0) ** 2.2
     fx, fy = p.code_frequencies
     x, y = np.arange(p.width)[None, :], np.arange(p.height)[:, None]
-    expected = 0.5 + 0.125 * (np.cos(2 * np.pi * 100 * x / p.width) + np.cos(2 * np.pi * (fx * x / p.width + fy * y / p.height)))
+    expected = 0.5 + 0.25 * (np.cos(2 * np.pi * 100 * x / p.width) + np.cos(2 * np.pi * (fx * x / p.width + fy * y / p.height)))
     assert np.abs(light - expected).max() < 0.01  # within 8-bit quantization after gamma
-    assert fx * 32 == 100  # the code's phase moves 2 pi / 32 per carrier fringe
+    assert fx * 36 == 100 and fy == 800 / 17  # the code's phase moves 2 pi / 36 per carrier fringe
 
 
 def test_a_set_written_before_the_composite_is_the_papers():

@@ -131,7 +131,11 @@ def test_cnn_depth_node(trained, tmp_path, ros_graph):
     out, _ = trained
     export(str(out / "last.pt"), str(tmp_path / "m.onnx"))
     procs, robot = ros_graph
-    procs.run("cnn_depth", "-p", f"model:={tmp_path / 'm.onnx'}", "-p", "threads:=1")
+    from fpp_nodes.core.calibration import Calibration, default_calibration_path
+    # the model reads the paper's frame (its data set's): a rig calibrated to show it
+    Calibration.load(default_calibration_path()).with_papers_single_shot().save(tmp_path / "paper.yaml")
+    procs.run("cnn_depth", "-p", f"model:={tmp_path / 'm.onnx'}", "-p", "threads:=1",
+              "-p", f"calibration:={tmp_path / 'paper.yaml'}")
     depth, clouds = [], []
     robot.node.create_subscription(Image, Topics.DEPTH, depth.append, Qos.LARGE)
     robot.node.create_subscription(PointCloud2, Topics.POINTS, clouds.append, Qos.LARGE)
@@ -169,7 +173,7 @@ def test_a_data_set_from_a_recorded_bag(tmp_path):
     writer = BagWriter(tmp_path / "bag")
     writer.write_calibration(Calibration.load(default_calibration_path()).to_yaml(), 0)
     t = 1_000_000_000
-    for k in [5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15] + list(range(16)):  # joins mid-sequence, then one whole
+    for k in list(range(5, patterns.count)) + list(range(patterns.count)):  # joins mid-sequence, then one whole
         header = header_at(t, "camera_optical_frame")
         writer.write("/projector/pattern", "sensor_msgs/msg/Image", t,
                      serialize_message(numpy_to_image(pattern_images(patterns)[k], header)))
@@ -179,6 +183,8 @@ def test_a_data_set_from_a_recorded_bag(tmp_path):
     assert write_bag_set(tmp_path / "bag", tmp_path / "set") == 1
     image, label, truth = load_sample(split_files(tmp_path / "set", "train")[0])
     np.testing.assert_array_equal(image, capture.images[patterns.single_shot_index])
+    with np.load(split_files(tmp_path / "set", "train")[0]) as z:  # what the composite network learns
+        assert z["code"].shape == z["fringe"].shape == (2, 480, 640)
     ok = np.isfinite(label) & capture.valid
     assert not np.isfinite(truth).any() and np.sqrt(np.mean((label - capture.depth_mm)[ok] ** 2)) < 0.06
 
@@ -203,3 +209,22 @@ def test_the_phase_aware_network_trains_exports_and_runs(tmp_path):
     assert r.returncode == 0 and "bust" in r.stdout and "freeform" in r.stdout, r.stderr[-2000:]
     with pytest.raises(ValueError, match="downsample 1"):
         TrainConfig(arch="phase", downsample=2)
+
+
+def test_the_composite_network_trains_exports_and_runs(tmp_path):
+    """A composite set (the composite frame, carrier and code targets), one epoch on crops, export with
+    a threshold chosen on the validation split, and onnxruntime inference with the physics decoder."""
+    data = write_set(tmp_path / "data", "composite", counts=(2, 1, 1), workers=1)
+    with np.load(split_files(data, "train")[0]) as z:
+        assert z["code"].shape == (2, 480, 640) and str(z["family"]) == "bust"
+    train(TrainConfig(data=str(data), out=str(tmp_path / "run"), arch="composite", width=4, downsample=1, epochs=1,
+                      crop=160, batch_size=4))
+    card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m.onnx"))
+    assert card["output"]["name"] == "fringe_phases" and card["input"]["content"] == "single-shot composite"
+    assert card["decoding"]["depth_range_mm"] == [1000.0, 1350.0] and "val" in card["decoding"]["chosen_on"]
+    model = DepthModel(tmp_path / "m.onnx", threads=1)
+    assert model.reads == "composite"
+    depth, confidence = model.infer(load_sample(split_files(data, "test")[0])[0])
+    sure = confidence[np.isfinite(confidence)]
+    assert sure.size and sure.min() >= 0 and sure.max() <= 1
+    assert np.all(np.isnan(depth[~(confidence >= model.min_confidence)]))

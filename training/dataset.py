@@ -1,10 +1,11 @@
-"""Data sets made the way the paper makes them: the input is the first phase-shifted image of the
-highest frequency; the label is the multi-shot (PSP) reconstruction of the same scene from all the
-images; the simulator's exact depth is kept beside it, so label errors and network errors can both
+"""Data sets made the way the paper makes them: the input is the single-shot frame (the paper's sets:
+the first phase-shifted image of the highest frequency; the composite set: the composite frame that
+rides along with every sequence); the label is the multi-shot (PSP) reconstruction of the same scene
+from the phase-shift images; the simulator's exact depth is kept beside it, so label errors and network errors can both
 be measured. Shadowed and untrusted pixels are invalid in the label and are left out of the loss.
 
     python -m training.dataset --out data/fpp --set single [--counts 540,60,72] [--workers 2]
-    python -m training.dataset --out data/fpp --set surface     # scene families, phase targets (see SETS)
+    python -m training.dataset --out data/fpp --set composite   # scene families, the composite (see SETS)
     python -m training.dataset --out data/my_rig --from-bag bags/run1 [--split train]
 
 On disk (a folder per set and split, one file per sample):
@@ -13,10 +14,10 @@ On disk (a folder per set and split, one file per sample):
     <out>/<set>/<split>/<seed>.npz     input  uint8 (H, W)   the fringe image
                                        label  uint16 (H, W)  PSP depth, (mm - 1000) * 100, 0 = invalid
                                        truth  uint16 (H, W)  exact depth, same encoding, 0 = shadow
-                         families/surface: phase  float32 (H, W)     multi-shot absolute phase, NaN invalid
-                                           fringe float16 (2, H, W)  its numerator and denominator
-                                           family str                the scene family
-                                           code   float16 (2, H, W)  the composite's code grating (code_targets)
+     families/surface/composite: phase  float32 (H, W)     multi-shot absolute phase, NaN invalid
+                                 fringe float16 (2, H, W)  its numerator and denominator
+                                 family str                the scene family
+                 composite (and bags): code   float16 (2, H, W)  the code grating (phase_targets)
 
 The uint16 encoding holds 1000.01-1655.35 mm in 0.01 mm steps (rounding adds 0.003 mm RMS).
 """
@@ -38,10 +39,12 @@ from fpp_nodes.core.reconstruct import PspReconstructor, full_scale
 from fpp_nodes.core.simulation import Rig, make_scene, random_rig, render
 
 SPLITS = ("train", "val", "test")
-# set name -> (scene kind, paper's counts, first seed); seeds never overlap between sets or splits
-SETS = {"single": ("sculpture", (540, 60, 72), 100_000), "multi": ("objects", (630, 70, 40), 200_000),
-        "families": ("families", (1000, 120, 180), 300_000), "surface": ("families", (600, 48, 96), 400_000),
-        "composite": ("families", (360, 40, 120), 500_000)}
+# set name -> (scene kind, paper's counts, first seed, single-shot frame); seeds never overlap between
+# sets or splits; the paper's sets render the paper's 16 frames (the same images as before the composite)
+SETS = {"single": ("sculpture", (540, 60, 72), 100_000, "paper"), "multi": ("objects", (630, 70, 40), 200_000, "paper"),
+        "families": ("families", (1000, 120, 180), 300_000, "paper"),
+        "surface": ("families", (600, 48, 96), 400_000, "paper"),
+        "composite": ("families", (360, 40, 120), 500_000, "composite")}
 # The families set spans the working volume: backgrounds anywhere in 1100-1300 mm. The surface set puts
 # the background (the work surface) at the calibration's reference depth at the image centre, any tilt:
 # one 100-fringe image cannot tell the fringe order of a surface at an unknown depth (a phase-aware
@@ -89,9 +92,14 @@ def seed_of(set_name: str, split: str, i: int) -> int:
 _worker = {}
 
 
-def _init(calibration_path: str):
-    rig = Rig()
-    _worker.update(rig=rig, patterns=rig.pattern_set(), psp=PspReconstructor(Calibration.load(calibration_path)))
+def set_calibration(calibration_path: str, single_shot: str) -> Calibration:
+    """The calibration a set is made with: the file's, showing the set's single-shot frame."""
+    calibration = Calibration.load(calibration_path)
+    return calibration.with_papers_single_shot() if single_shot == "paper" else calibration
+
+
+def _init(calibration: Calibration):
+    _worker.update(rig=Rig(), patterns=calibration.patterns, psp=PspReconstructor(calibration))
 
 
 def family_of(split: str, i: int) -> str:
@@ -100,7 +108,7 @@ def family_of(split: str, i: int) -> str:
 
 
 def make_sample(kind: str, seed: int, families: bool = False, surface_mm: float | None = None) -> dict:
-    """Render one scene, reconstruct it with the multi-shot path, keep the first 100-fringe image.
+    """Render one scene, reconstruct it with the multi-shot path, keep the single-shot frame.
 
     For the families set (families=True) the scene is rendered with random photometry (random_rig),
     and the sample also keeps its family and the multi-shot phase: `phase`, the absolute phase of the
@@ -115,25 +123,30 @@ def make_sample(kind: str, seed: int, families: bool = False, surface_mm: float 
     sample = {"input": capture.images[patterns.single_shot_index],
               "label": encode_depth(rec.depth_mm), "truth": encode_depth(truth)}
     if families:
-        top = capture.images[patterns.top_frequency_frames]
-        s, c = sin_cos_sums(top)
-        scale = 2.0 / (patterns.steps * full_scale(top.dtype))
-        sample.update(phase=np.where(np.isfinite(rec.depth_mm), rec.phase, np.nan).astype(np.float32),
-                      fringe=np.stack([-s * scale, c * scale]).astype(np.float16), family=kind)
-        if patterns.single_shot == "composite":
-            sample["code"] = code_targets(psp.calibration, rec.phase, rec.depth_mm, np.hypot(s, c) * scale)
+        sample.update(phase_targets(capture.images, rec, psp.calibration), family=kind)
     return sample
 
 
-def code_targets(calibration, phase: np.ndarray, depth_mm: np.ndarray, modulation: np.ndarray) -> np.ndarray:
-    """The composite's code grating as the multi-shot path sees it: B/2 sin psi, B/2 cos psi (float16,
-    (2, H, W), NaN where the label is untrusted), psi = the row phase at the labelled depth plus the
-    absolute carrier phase / CODE_ORDERS; B/2 because each of its gratings has half a phase-shift
-    pattern's amplitude."""
-    u = np.arange(phase.shape[1], dtype=np.float64)[None, :]
-    v = np.arange(phase.shape[0], dtype=np.float64)[:, None]
-    code = calibration.code_row_phase_at_depth(depth_mm, u, v) + phase / CODE_ORDERS
-    return np.stack([0.5 * modulation * np.sin(code), 0.5 * modulation * np.cos(code)]).astype(np.float16)
+def phase_targets(images: np.ndarray, rec, calibration: Calibration) -> dict:
+    """What the phase-aware networks learn, from a sequence and its multi-shot reconstruction:
+    `phase`, the absolute phase of the highest frequency (float32, NaN where untrusted); `fringe`, its
+    numerator and denominator (B sin phi, B cos phi over full scale, float16, (2, H, W)); with the
+    composite also `code`, its code grating as the multi-shot path sees it: B/2 sin psi, B/2 cos psi,
+    psi = the row phase at the labelled depth plus the absolute carrier phase / CODE_ORDERS (each of
+    the composite's gratings has half a phase-shift pattern's amplitude)."""
+    patterns = calibration.patterns
+    top = images[patterns.top_frequency_frames]
+    s, c = sin_cos_sums(top)
+    scale = 2.0 / (patterns.steps * full_scale(top.dtype))
+    targets = {"phase": np.where(np.isfinite(rec.depth_mm), rec.phase, np.nan).astype(np.float32),
+               "fringe": np.stack([-s * scale, c * scale]).astype(np.float16)}
+    if patterns.single_shot == "composite":
+        u = np.arange(rec.phase.shape[1], dtype=np.float64)[None, :]
+        v = np.arange(rec.phase.shape[0], dtype=np.float64)[:, None]
+        code = calibration.code_row_phase_at_depth(rec.depth_mm, u, v) + rec.phase / CODE_ORDERS
+        half = 0.5 * np.hypot(s, c) * scale
+        targets["code"] = np.stack([half * np.sin(code), half * np.cos(code)]).astype(np.float16)
+    return targets
 
 
 def _write(job):
@@ -144,10 +157,10 @@ def _write(job):
 
 def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_path: str | None = None) -> Path:
     """Make (or finish: existing samples are kept) one data set; returns its folder."""
-    kind, paper_counts, _ = SETS[set_name]
+    kind, paper_counts, _, single_shot = SETS[set_name]
     counts = tuple(counts or paper_counts)
-    calibration_path = calibration_path or default_calibration_path()
-    surface_mm = Calibration.load(calibration_path).reference_depth_mm if set_name == "surface" else None
+    calibration = set_calibration(calibration_path or default_calibration_path(), single_shot)
+    surface_mm = calibration.reference_depth_mm if set_name == "surface" else None
     folder = Path(out) / set_name
     jobs = []
     for split, n in zip(SPLITS, counts):
@@ -158,17 +171,17 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
                 families = kind == "families"
                 jobs.append((family_of(split, i) if families else kind, seed_of(set_name, split, i), path, families,
                              surface_mm))
-    rig = Rig()
+    rig, patterns = Rig(), calibration.patterns
     (folder / "dataset.yaml").write_text(yaml.safe_dump({
         "format": "fpp_dataset", "version": FORMAT_VERSION, "set": set_name, "scene": kind,
         **({"train_families": list(TRAIN_FAMILIES), "held_out_families": list(HELD_OUT_FAMILIES)}
            if kind == "families" else {}),
         **({"background_centre_mm": surface_mm} if surface_mm is not None else {}),
         "counts": dict(zip(SPLITS, counts)), "first_seeds": {s: seed_of(set_name, s, 0) for s in SPLITS},
-        "input": rig.pattern_set().names()[rig.pattern_set().single_shot_index], "label": "multi-shot PSP depth",
+        "input": patterns.names()[patterns.single_shot_index], "label": "multi-shot PSP depth",
         "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},
-        "rig": rig.to_dict(), "calibration": Calibration.load(calibration_path).to_dict()}, sort_keys=False))
-    with ProcessPoolExecutor(workers, initializer=_init, initargs=(calibration_path,)) as pool:
+        "rig": rig.to_dict(), "calibration": calibration.to_dict()}, sort_keys=False))
+    with ProcessPoolExecutor(workers, initializer=_init, initargs=(calibration,)) as pool:
         for _ in tqdm(pool.map(_write, jobs), total=len(jobs), desc=f"{set_name} set", disable=None):
             pass
     return folder
@@ -208,14 +221,15 @@ def write_bag_set(bag, out, split: str = "train", calibration_path: str | None =
             continue
         sequence, _ = assembler.add(match[1], stamp, image.copy())
         if sequence is not None:
-            label = psp(sequence.images).depth_mm
+            rec = psp(sequence.images)
+            composite = phase_targets(sequence.images, rec, calibration) if patterns.single_shot == "composite" else {}
             np.savez_compressed(folder / f"{sequence.stamps_ns[0]}.npz",
-                                input=sequence.images[patterns.single_shot_index],
-                                label=encode_depth(label), truth=np.zeros(label.shape, np.uint16))
+                                input=sequence.images[patterns.single_shot_index], label=encode_depth(rec.depth_mm),
+                                truth=np.zeros(rec.depth_mm.shape, np.uint16), **composite)
             count += 1
     (Path(out) / "dataset.yaml").write_text(yaml.safe_dump({
         "format": "fpp_dataset", "version": FORMAT_VERSION, "set": "bag", "bag": str(bag),
-        "counts": {split: count}, "input": "first image of the highest frequency", "label": "multi-shot PSP depth",
+        "counts": {split: count}, "input": patterns.names()[patterns.single_shot_index], "label": "multi-shot PSP depth",
         "truth": "none (a recorded scene): all 0", "sequences_dropped": assembler.stats.dropped,
         "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},
         "calibration": calibration.to_dict()}, sort_keys=False))

@@ -23,6 +23,7 @@ import yaml
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.model import trusted_single_shot
 from fpp_nodes.core.reconstruct import reconstruct_ftp
+from fpp_nodes.core.simulation import SURFACE_DEPTH_MM
 from fpp_nodes.core.workflow import fringe_depth_mm
 
 from .dataset import load_sample, split_files
@@ -82,6 +83,10 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     from .figures import load_models
     models = load_models(model_paths)
     info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
+    calibration = Calibration.from_dict(info["calibration"])
+    if calibration.code_model is not None:  # the classical baseline on our pattern
+        models.append(("FTP (composite)", lambda image: reconstruct_ftp(image, calibration,
+                                                                       depth_range_mm=SURFACE_DEPTH_MM).depth_mm))
     held_out = set(info.get("held_out_families", []))
     stats = {}  # (family, model) -> [squared error, output pixels, silent errors, lit pixels, confidence sum, n]
     for f in split_files(data, split)[: limit or None]:

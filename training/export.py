@@ -23,7 +23,8 @@ import torch
 import yaml
 
 from fpp_nodes.core.calibration import Calibration
-from fpp_nodes.core.model import CompositeDecoder, PhaseOrderDecoder, fringe_mask, network_input, trusted_single_shot
+from fpp_nodes.core.model import PhaseOrderDecoder, fringe_mask, network_input, trusted_single_shot
+from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.core.patterns import PatternSet
 from fpp_nodes.core.simulation import SURFACE_DEPTH_MM
 
@@ -53,9 +54,9 @@ def choose_min_confidence(model, data: str, decoder, limit: int = 60) -> dict:
     for f in split_files(data, "val")[:limit]:
         image, _, truth = load_sample(f)
         out = predict(model, torch.from_numpy(network_input(image))[None, None])[0].numpy()
-        fringes = fringe_mask(image)
+        fringes = fringe_mask(image, modulation=np.hypot(out[0], out[1]))  # as DepthModel.infer
         for c in CONFIDENCE_GRID:
-            depth = decoder(out, c)[0]
+            depth = decoder(out, c, fringes)[0]
             for edge in (True, False):
                 shown = (trusted_single_shot(depth.copy(), image, fringes=fringes) if edge
                          else np.where(fringes, depth, np.nan))

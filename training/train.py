@@ -31,7 +31,8 @@ from tqdm import tqdm
 from fpp_nodes.core.pictures import depth_colours
 
 from fpp_nodes.core.calibration import Calibration
-from fpp_nodes.core.model import CompositeDecoder, PhaseOrderDecoder, network_input
+from fpp_nodes.core.model import PhaseOrderDecoder, network_input
+from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.core.simulation import SURFACE_DEPTH_MM
 
 from .dataset import load_phase_targets, load_sample, split_files
@@ -216,7 +217,9 @@ def errors_mm(pred, reference):
     return float((d * d).sum()), float((d.abs() / reference[ok].double()).sum()), int(ok.sum())
 
 
-VALIDATION_CONFIDENCE = 0.99  # for the per-epoch numbers only; export chooses the model's threshold
+# for the per-epoch numbers only (export chooses the model's threshold): the phase-order network's
+# probability that the order is right; the composite's vote
+VALIDATION_CONFIDENCE = {"phase": 0.99, "composite": 0.8}
 
 
 @torch.no_grad()
@@ -231,7 +234,7 @@ def evaluate_phase(model, loader, device, decoder) -> dict:
         losses.append((composite_loss(pred, *targets) if isinstance(decoder, CompositeDecoder)
                        else phase_order_loss(pred, *targets)).item())
         for out, ref in zip(pred.cpu().numpy(), label[:, 0].numpy()):
-            depth, _ = decoder(out, VALIDATION_CONFIDENCE)
+            depth, _ = decoder(out, VALIDATION_CONFIDENCE["composite" if isinstance(decoder, CompositeDecoder) else "phase"])
             ok = np.isfinite(depth) & np.isfinite(ref)
             d = depth[ok].astype(np.float64) - ref[ok]
             sq, n, wrong, n_label = sq + float(d @ d), n + d.size, wrong + int((np.abs(d) > 1).sum()), n_label + int(np.isfinite(ref).sum())
@@ -387,7 +390,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
         net.eval()
         with torch.no_grad():
             shown = predict(net, showcase[0][None].to(device))[0].cpu().numpy()
-        shown = decoder(shown, VALIDATION_CONFIDENCE)[0] if phase_aware else shown[0]
+        shown = decoder(shown, VALIDATION_CONFIDENCE[config.arch])[0] if phase_aware else shown[0]
         cv2.imwrite(str(out / "epochs" / f"epoch_{epoch:04d}.png"),
                     np.hstack([depth_colours(showcase[-1 if phase_aware else 1][0].numpy()), depth_colours(shown)]))
         save_checkpoint(out / "last.pt", model, optimizer, scheduler, config, epoch, history, seconds)

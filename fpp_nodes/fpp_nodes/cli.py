@@ -24,7 +24,7 @@ from .core.calibration import Calibration, CalibrationError, CameraIntrinsics, b
 from .core.metrics import depth_errors
 from .core.patterns import PatternSet, generate_patterns
 from .core.reconstruct import PspReconstructor, QualityLimits, Reconstruction, reconstruct_ftp
-from .core.simulation import Rig, SCENE_KINDS, make_scene, render, scene_from_file
+from .core.simulation import Rig, SCENE_KINDS, SURFACE_DEPTH_MM, make_scene, render, scene_from_file
 from .core.workflow import (CALIBRATION_DEPTHS_MM, calibrate_from_planes, fringe_depth_mm, held_out_scenes, score,
                             simulated_calibration)
 
@@ -122,7 +122,7 @@ def _reconstruct(images: np.ndarray, calibration: Calibration, method: str, limi
         quality = confidence if confidence is not None else np.isfinite(depth).astype(np.float32)
         return Reconstruction(depth, back_project(depth, calibration.camera), np.isfinite(depth), quality,
                               np.full(depth.shape, np.nan, np.float32))
-    return reconstruct_ftp(images[index], calibration, limits)
+    return reconstruct_ftp(images[index], calibration, limits, SURFACE_DEPTH_MM)
 
 
 def write_pictures(out: Path, depth_mm: np.ndarray, xyz_mm: np.ndarray | None = None, truth_mm: np.ndarray | None = None,
@@ -218,7 +218,7 @@ def cmd_demo(args) -> None:
         start = time.perf_counter()
         multi = psp(capture.images)
         psp_ms = (time.perf_counter() - start) * 1000
-        single = reconstruct_ftp(capture.images[-patterns.steps], calibration)
+        single = reconstruct_ftp(capture.images[patterns.single_shot_index], calibration, depth_range_mm=SURFACE_DEPTH_MM)
         result = score(multi, capture.depth_mm, capture.valid, calibration, rig.noise_sigma, name)
         ftp = depth_errors(single.depth_mm, capture.depth_mm, capture.valid, fringe_depth_mm(calibration, multi.phase))
         folder = out / name

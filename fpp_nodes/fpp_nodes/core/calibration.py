@@ -10,7 +10,7 @@ Here z is the depth along the camera's optical axis, in millimetres, (u, v) the 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 
@@ -183,6 +183,10 @@ class Calibration:
         if (self.patterns.single_shot == "composite") != (self.code_model is not None):
             raise CalibrationError("a calibration has a code model exactly when its patterns have the composite "
                                    f"single-shot frame (single_shot is {self.patterns.single_shot!r})")
+
+    def with_papers_single_shot(self) -> "Calibration":
+        """The same rig showing the paper's single-shot frame instead of the composite: 16 frames."""
+        return Calibration(self.camera, self.model, replace(self.patterns, single_shot="paper"), self.reference_depth_mm)
 
     def code_row_phase_at_depth(self, depth, u, v):
         """The code grating's row phase a pixel sees at a depth (composite calibrations only)."""

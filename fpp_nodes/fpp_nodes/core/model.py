@@ -14,8 +14,8 @@ import numpy as np
 import yaml
 
 from .calibration import Calibration, CalibrationError
-from .patterns import CODE_ORDERS, PatternError, PatternSet
-from .reconstruct import QualityLimits, depth_terms, drop_flying_pixels, full_scale
+from .patterns import PatternError, PatternSet
+from .reconstruct import CompositeDecoder, QualityLimits, depth_terms, drop_flying_pixels, full_scale
 
 STRIDE = 32
 # Local fringe contrast is measured over one fringe period of the default rig's highest frequency
@@ -29,9 +29,9 @@ class ModelError(ValueError):
 
 
 def default_model_path() -> str:
-    """The shipped default: the phase-aware model (make phase-model), which says NaN where it cannot
-    tell the fringe order."""
-    return str(resources.files("fpp_nodes") / "data" / "models" / "phase.onnx")
+    """The shipped default: the composite pattern's network (make composite-model), which says NaN
+    where it cannot tell the fringe order."""
+    return str(resources.files("fpp_nodes") / "data" / "models" / "composite.onnx")
 
 
 def paper_model_path() -> str:
@@ -121,9 +121,8 @@ class DepthModel:
         x = cv2.copyMakeBorder(x, 0, (-h) % STRIDE, 0, (-w) % STRIDE, cv2.BORDER_REPLICATE)
         out = self.session.run([self.output], {"image": x[None, None]})[0][0, :, :h, :w]
         if self.decoder is not None:
-            depth, confidence = self.decoder(out, self.min_confidence)
-            fringes = fringe_mask(image)
-            confidence[~fringes] = np.nan  # no fringes: nothing to be confident about
+            fringes = fringe_mask(image, modulation=np.hypot(out[0], out[1]))
+            depth, confidence = self.decoder(out, self.min_confidence, fringes)
             return trusted_single_shot(depth, image, fringes=fringes), confidence
         depth = cv2.resize(out[0], self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else out[0]
         return trusted_single_shot(depth, image), None
@@ -159,7 +158,8 @@ class PhaseOrderDecoder:
                                          (cam.height, cam.width)).astype(np.float32)
         self.terms = depth_terms(calibration)
 
-    def __call__(self, out: np.ndarray, min_confidence: float) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, out: np.ndarray, min_confidence: float,
+                 fringes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         num, den, orders, log_sigma = (np.ascontiguousarray(c, np.float32) for c in out)
         wrapped = cv2.phase(den, num)  # atan2(num, den) in [0, 2 pi)
         coarse = self.reference + np.float32(2 * np.pi) * orders
@@ -167,56 +167,8 @@ class PhaseOrderDecoder:
         ca, cb, da, db = self.terms
         depth = (ca + cb * phase) / (da + db * phase)
         confidence = order_confidence(log_sigma)
-        depth[~(confidence >= min_confidence)] = np.nan
-        return depth, confidence
-
-
-class CompositeDecoder:
-    """The composite pattern's two phases -> depth, for a calibration with a code model.
-
-    Each pixel's carrier order is one of CODE_ORDERS consecutive orders that span the working range
-    (depth_range_mm, with equal slack at both ends); the code phase says which: it is the row phase
-    plus the absolute carrier phase / CODE_ORDERS, so each candidate order predicts it 2 pi /
-    CODE_ORDERS apart from the next. The row phase is taken at the reference depth, then again at the
-    chosen order's depth, twice (it moves < 0.7 rad over the range). Confidence is how well the code agrees
-    with the chosen order: 1 exactly, 0 half-way to the next order; depth is NaN below min_confidence.
-    """
-
-    def __init__(self, calibration: Calibration, depth_range_mm: tuple[float, float]):
-        if calibration.code_model is None:
-            raise ModelError("the composite decoder needs a calibration made with the composite pattern (a code model)")
-        cam = calibration.camera
-        u = np.arange(cam.width, dtype=np.float64)[None, :]
-        v = np.arange(cam.height, dtype=np.float64)[:, None]
-        ends = [np.broadcast_to(calibration.model.phase_at_depth(z, u, v), (cam.height, cam.width)) for z in depth_range_mm]
-        span = np.abs(ends[1] - ends[0]) / (2 * np.pi)
-        if span.max() > CODE_ORDERS - 1:
-            raise ModelError(f"the working range {depth_range_mm[0]:g}-{depth_range_mm[1]:g} mm spans up to {span.max():.1f} "
-                             f"fringe orders; the composite's code tells {CODE_ORDERS} apart")
-        slack = (CODE_ORDERS - span) / 2 * (2 * np.pi)
-        self.lowest = (np.minimum(ends[0], ends[1]) - slack).astype(np.float32)
-        self.reference_row = np.broadcast_to(
-            calibration.code_row_phase_at_depth(calibration.reference_depth_mm, u, v), (cam.height, cam.width)).astype(np.float32)
-        self.terms = depth_terms(calibration)
-        self.code_terms = [np.ascontiguousarray(np.broadcast_to(t, (cam.height, cam.width)), np.float32)
-                           for t in calibration.code_model.linear_in_phase(u, v)]
-
-    def __call__(self, out: np.ndarray, min_confidence: float) -> tuple[np.ndarray, np.ndarray]:
-        """out: (4, H, W) carrier numerator, denominator, code numerator, denominator."""
-        num, den, code_num, code_den = (np.ascontiguousarray(c, np.float32) for c in out)
-        two_pi, k = np.float32(2 * np.pi), np.float32(CODE_ORDERS)
-        carrier, code = cv2.phase(den, num), cv2.phase(code_den, code_num)
-        lowest = carrier + two_pi * np.ceil((self.lowest - carrier) / two_pi)  # the lowest candidate's phase
-        ca, cb, da, db = self.terms
-        qa, qb, pa, pb = self.code_terms
-        row = self.reference_row
-        for _ in range(3):  # from the reference depth the row phase is up to 3 orders' worth off the
-            left = code - row - lowest / k  # code, then < 0.1 rad, then exact: 2 pi j / K for the j-th
-            phase = lowest + two_pi * np.mod(np.rint(left * (k / two_pi)), k)  # candidate, if the code is right
-            depth = (ca + cb * phase) / (da + db * phase)
-            row = (qa - depth * pa) / (depth * pb - qb) - phase  # the row phase at that depth
-        residual = np.mod(code - row - phase / k + np.float32(np.pi), two_pi) - np.float32(np.pi)
-        confidence = np.maximum(1 - np.abs(residual) * (k / np.float32(np.pi)), 0)
+        if fringes is not None:
+            confidence[~fringes] = np.nan  # no fringes: nothing to be confident about
         depth[~(confidence >= min_confidence)] = np.nan
         return depth, confidence
 
@@ -232,16 +184,22 @@ def trusted_single_shot(depth: np.ndarray, image: np.ndarray,
     return depth
 
 
-def fringe_mask(image: np.ndarray, min_modulation: float = MIN_MODULATION, window: int = CONTRAST_WINDOW) -> np.ndarray:
-    """Pixels of a single fringe image whose depth a network can know: the local fringe modulation
-    (sqrt(2) x the standard deviation over the window, the amplitude of a sinusoid) is at least
-    min_modulation of full scale, and no pixel near it is saturated (clipped fringes). A network
-    answers everywhere; this keeps it from answering in shadows, in the dark and in glare."""
+def fringe_mask(image: np.ndarray, min_modulation: float = MIN_MODULATION, window: int = CONTRAST_WINDOW,
+                modulation: np.ndarray | None = None) -> np.ndarray:
+    """Pixels of a single fringe image whose depth a network can know: the fringe modulation is at
+    least min_modulation of full scale, and no pixel near it is saturated (clipped fringes). The
+    modulation is the phase-aware network's own estimate of the multi-shot B (modulation, full-scale
+    units: the multi-shot path's criterion) or else sqrt(2) x the local standard deviation over the
+    window (the amplitude of one sinusoid). A network answers everywhere; this keeps it from answering
+    in shadows, in the dark and in glare."""
     scale = full_scale(image.dtype)
-    mean = cv2.boxFilter(image, cv2.CV_32F, (window, window))
-    variance = cv2.sqrBoxFilter(image, cv2.CV_32F, (window, window))
-    variance -= cv2.multiply(mean, mean)
-    ok = variance >= 0.5 * (min_modulation * scale) ** 2
+    if modulation is not None:
+        ok = modulation >= min_modulation
+    else:
+        mean = cv2.boxFilter(image, cv2.CV_32F, (window, window))
+        variance = cv2.sqrBoxFilter(image, cv2.CV_32F, (window, window))
+        variance -= cv2.multiply(mean, mean)
+        ok = variance >= 0.5 * (min_modulation * scale) ** 2
     saturated = (image >= scale).astype(np.uint8)
     if saturated.any():
         ok &= cv2.dilate(saturated, np.ones((window, window), np.uint8)) == 0

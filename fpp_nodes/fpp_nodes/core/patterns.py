@@ -25,8 +25,14 @@ import numpy as np
 
 
 SINGLE_SHOT_KINDS = ("composite", "paper")
-CODE_ORDERS = 32  # carrier fringe orders the composite's code tells apart: the working range is 28.4
-COMPOSITE_AMPLITUDE = 0.25  # a of each grating, so the composite spans 0 .. 2 I_0
+# The code's two design numbers (measured in the README, "The composite pattern"): a camera pixel sees a
+# projector row that drifts with depth, more the finer the code's rows, which brings the orders' codes
+# closer; 36 orders and 17-pixel rows keep every two orders of the working range (28.4 orders, 1000-1350
+# mm) at least 0.13 rad apart in the default rig, with the code's lobe far from the albedo's.
+CODE_ORDERS = 36  # carrier fringe orders the code tells apart
+CODE_ROW_PERIOD_PX = 17.0  # the code grating's period down the projector, pixels
+COMPOSITE_AMPLITUDE = 0.5  # a of each grating, so the composite spans 0 .. 2 I_0: each has half the contrast of a
+# phase-shift pattern
 
 
 class PatternError(ValueError):
@@ -94,9 +100,9 @@ class PatternSet:
 
     @property
     def code_frequencies(self) -> tuple[float, float]:
-        """The composite code grating's fringes across the width and down the height (f_max / K, g):
-        g gives it about the carrier's period in projector pixels."""
-        return self.frequencies[-1] / CODE_ORDERS, float(max(1, round(self.height * self.frequencies[-1] / self.width)))
+        """The composite code grating's fringes across the width and down the height (f_max / K, g),
+        g = height / CODE_ROW_PERIOD_PX."""
+        return self.frequencies[-1] / CODE_ORDERS, self.height / CODE_ROW_PERIOD_PX
 
     def shifts(self) -> np.ndarray:
         """delta_j = 2 pi j / N for j = 0 .. N-1."""

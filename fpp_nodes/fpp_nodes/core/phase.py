@@ -136,19 +136,20 @@ def unwrap_spatial(wrapped: np.ndarray) -> np.ndarray:
     return psi + TWO_PI * np.rint((smooth - psi) / TWO_PI)
 
 
-def ftp_wrapped_phase(image: np.ndarray, vertical_fringes: bool = True, band: float = 0.5):
+def ftp_wrapped_phase(image: np.ndarray, vertical_fringes: bool = True, band: float = 0.5, carrier: float | None = None):
     """Takeda's Fourier-transform profilometry on one fringe image.
 
     Keeps the spectral lobe around the positive carrier (found as the strongest peak away from DC
     near the axis across the fringes), with a Hann window of half-width band * carrier, and returns
     (wrapped phase in [0, 2 pi), lobe amplitude). The phase grows along +x (or +y), so it equals the
-    projector phase where the projector phase grows along +x too.
+    projector phase where the projector phase grows along +x too. carrier (cycles per image width),
+    where known from the calibration, replaces the search (texture can outshine the fringes).
     """
     img = np.asarray(image, np.float64)
     if img.ndim != 2 or min(img.shape) < 8:
         raise PhaseError(f"FTP needs one 2-D image of at least 8x8 pixels, got shape {img.shape}")
     if not vertical_fringes:
-        phase, amp = ftp_wrapped_phase(img.T, True, band)
+        phase, amp = ftp_wrapped_phase(img.T, True, band, carrier)
         return phase.T, amp.T
     h, w = img.shape
     spectrum = np.fft.fft2(img - img.mean())
@@ -158,7 +159,8 @@ def ftp_wrapped_phase(image: np.ndarray, vertical_fringes: bool = True, band: fl
     search = fx >= 2.0
     if not search.any():
         raise PhaseError("image too narrow to find a fringe carrier")
-    carrier = fx[search][np.argmax(row_power[search])]
+    if carrier is None:
+        carrier = fx[search][np.argmax(row_power[search])]
     half = max(band * carrier, 1.0)
     wx = np.where(np.abs(fx - carrier) < half, 0.5 * (1 + np.cos(np.pi * (fx - carrier) / half)), 0.0)
     wy = np.where(np.abs(fy) < half, 0.5 * (1 + np.cos(np.pi * fy / half)), 0.0)
@@ -166,10 +168,11 @@ def ftp_wrapped_phase(image: np.ndarray, vertical_fringes: bool = True, band: fl
     return np.mod(np.angle(analytic), TWO_PI), 2.0 * np.abs(analytic)
 
 
-def ftp_code_phase(image: np.ndarray, band: float = 0.5):
+def ftp_code_phase(image: np.ndarray, band: float = 0.5, centre: tuple[float, float] | None = None):
     """The composite pattern's code grating by FTP: the strongest spectral lobe at least 4 cycles down
     the image (the carrier's lobe and the albedo's sit near zero there), kept with a Hann window of
-    radius band x its distance from DC. Returns (wrapped phase in [0, 2 pi), lobe amplitude). Exact on
+    radius band x its distance from DC (centre, cycles per image width and height, where known from the
+    calibration, replaces the search). Returns (wrapped phase in [0, 2 pi), lobe amplitude). Exact on
     smooth surfaces (a plane: about 0.002 rad), which is what the calibration needs."""
     img = np.asarray(image, np.float64)
     if img.ndim != 2 or min(img.shape) < 16:
@@ -178,9 +181,11 @@ def ftp_code_phase(image: np.ndarray, band: float = 0.5):
     spectrum = np.fft.fft2(img - img.mean())
     fx = (np.fft.fftfreq(w) * w)[None, :]
     fy = (np.fft.fftfreq(h) * h)[:, None]
-    power = np.where(fy >= 4.0, np.abs(spectrum), 0.0)
-    peak = np.unravel_index(np.argmax(power), power.shape)
-    cx, cy = fx[0, peak[1]], fy[peak[0], 0]
+    if centre is None:
+        power = np.where(fy >= 4.0, np.abs(spectrum), 0.0)
+        peak = np.unravel_index(np.argmax(power), power.shape)
+        centre = fx[0, peak[1]], fy[peak[0], 0]
+    cx, cy = centre
     radius = band * np.hypot(cx, cy)
     r = np.hypot(fx - cx, fy - cy)
     window = np.where(r < radius, 0.5 * (1 + np.cos(np.pi * r / radius)), 0.0)

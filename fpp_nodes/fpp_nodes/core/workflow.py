@@ -69,9 +69,18 @@ def code_row_phase(composite: np.ndarray, phase: np.ndarray, valid: np.ndarray) 
     """The code grating's row phase on a plane (its FTP phase less the carrier's absolute phase /
     CODE_ORDERS), unwrapped across the plane; NaN near edges and where the multi-shot phase is untrusted."""
     code, _ = ftp_code_phase(composite)
-    row = unwrap_spatial(np.mod(code - phase / CODE_ORDERS, TWO_PI))
     inner = cv2.erode(valid.astype(np.uint8), np.ones((2 * CODE_BORDER_PX + 1,) * 2, np.uint8),
                       borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    if not inner.any():
+        raise CalibrationError("a plane's composite frame shows no fringes away from its edges")
+    # outside the trusted pixels the phases are noise, whose 2 pi jumps would spread through the
+    # unwrapping: each takes its nearest trusted pixel's wrapped row phase instead
+    _, nearest = cv2.distanceTransformWithLabels((~inner).astype(np.uint8), cv2.DIST_L2, 5,
+                                                 labelType=cv2.DIST_LABEL_PIXEL)
+    wrapped = np.mod(code - phase / CODE_ORDERS, TWO_PI)
+    sources = np.zeros(nearest.max() + 1, wrapped.dtype)
+    sources[nearest[inner]] = wrapped[inner]
+    row = unwrap_spatial(np.where(inner, wrapped, sources[nearest]))
     return np.where(inner, row, np.nan)
 
 

@@ -3,8 +3,9 @@
 Subscribes projector/pattern (which pattern was shown when) and camera/image_raw. A frame belongs to
 the pattern shown within max_time_offset of its stamp; its index comes from matching that pattern
 against the calibration's pattern set. Publishes fringe_sequence (sensor_msgs/Image): the K frames
-stacked vertically (height K x H), stamped with the first frame's time, and fringe_single: its first
-image of the highest frequency (the single-shot input), with that frame's stamp. A sequence with a missing,
+stacked vertically (height K x H), stamped with the first frame's time, and fringe_single: its
+single-shot frame (the composite, its last frame; or with the paper's pattern set its first image of
+the highest frequency), with that frame's stamp. A sequence with a missing,
 duplicated or out-of-order frame is dropped with a warning and counted, never mixed into the next.
 """
 from __future__ import annotations
