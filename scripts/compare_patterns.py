@@ -97,7 +97,7 @@ def main():
             row += [np.sqrt(np.mean(e ** 2)), np.sqrt(np.mean((e * mm_per_rad[inner]) ** 2))]
         row.append(np.sqrt(np.mean(wrapped_error(code_phase, code)[inner] ** 2)))
         out = np.stack([np.sin(phase), np.cos(phase), np.sin(code_phase), np.cos(code_phase)])
-        own, _ = decoder.code_phase(phase.astype(np.float32), code_phase.astype(np.float32))
+        own = decoder.code_phase(phase.astype(np.float32), code_phase.astype(np.float32))
         truth_order = np.rint((carrier - phase) / (2 * np.pi))
         row.append(np.mean((np.rint((own - phase) / (2 * np.pi)) != truth_order)[inner]))
         depth, _ = decoder(out, 0.5)

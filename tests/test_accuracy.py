@@ -80,11 +80,14 @@ def test_the_papers_unet_on_fresh_scenes_of_its_family(rig, patterns, seed):
 
 def test_the_shipped_single_shot_model_is_not_silently_wrong_where_the_papers_unet_is(rig):
     """Issue 10's failure cases (a bump, a sphere, blocks, a tilted plane; in no data set): the paper's
-    UNet gives depth to every lit pixel, most of them off by more than 1 mm; the shipped phase-aware
-    model leaves at most 1% of the pixels it gives a depth off by more than 1 mm (the rest is NaN)."""
+    UNet gives depth to every lit pixel, most of them off by more than 1 mm; the shipped composite model
+    gives depth to at least 85% of the lit pixels (measured 91-99%), at most 0.5% of it off by more than
+    1 mm on the smooth shapes (measured 0-0.1%) and 3% on the blocks (2.2%: at the step edges)."""
     from fpp_nodes.core.model import DepthModel, default_model_path, paper_model_path
     from training.figures import failure_figure
     _, table = failure_figure([("shipped", DepthModel(default_model_path())), ("paper", DepthModel(paper_model_path()))], rig)
     rows = {(scene, model): (silent, cover) for scene, model, _, silent, cover in table}
-    assert max(silent for (_, model), (silent, _) in rows.items() if model == "shipped") <= 0.01, rows
+    for (scene, model), (silent, cover) in rows.items():
+        if model == "shipped":
+            assert cover >= 0.85 and silent <= (0.03 if scene.startswith("blocks") else 0.005), rows
     assert rows["plane tilted 15 deg", "paper"][0] > 0.5 and rows["plane tilted 15 deg", "paper"][1] > 0.99, rows

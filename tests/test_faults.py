@@ -43,7 +43,7 @@ def bad_frames(good: np.ndarray) -> dict:
             "NaN and Inf": (numpy_to_image(nan), None)}  # what is said depends on the path
 
 
-SCULPTURE_COVERAGE = 0.5  # the shipped model on this sculpture: measured PLACEHOLDER
+SCULPTURE_COVERAGE = 0.85  # the shipped model's coverage of this sculpture's lit pixels: measured 0.93
 
 
 @lru_cache
@@ -250,7 +250,8 @@ def corrupt_model(folder: Path) -> Path:
     """The shipped model cut short, with a card that vouches for the cut file: onnxruntime must refuse it."""
     import hashlib
     import yaml
-    data = Path(default_model_path()).read_bytes()[:100_000]
+    data = Path(default_model_path()).read_bytes()
+    data = data[:len(data) // 2]
     card = yaml.safe_load(Path(default_model_path()).with_suffix(".yaml").read_text())
     card["sha256"] = hashlib.sha256(data).hexdigest()
     (folder / "m.onnx").write_bytes(data)

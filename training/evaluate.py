@@ -79,7 +79,8 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     """Generalisation by scene family, on the split's samples (the families set's test split holds the
     held-out families too): RMSE against the exact depth, silent errors (the share of output pixels off
     it by more than SILENT_ERROR_MM), coverage (the share of lit pixels given a depth) and, for a
-    phase-aware model, the mean confidence in the fringe order over the lit pixels that show fringes."""
+    phase-aware model, the mean confidence in the fringe order over the lit pixels that show fringes;
+    beside them FTP on the same images where the set is the composite's, and the multi-shot label."""
     from .figures import load_models
     models = load_models(model_paths)
     info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
@@ -87,14 +88,16 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     if calibration.code_model is not None:  # the classical baseline on our pattern
         models.append(("FTP (composite)", lambda image: reconstruct_ftp(image, calibration,
                                                                        depth_range_mm=SURFACE_DEPTH_MM).depth_mm))
+    models.append(("multi-shot (the label)", None))  # what all the sequence's images measure: the reference
     held_out = set(info.get("held_out_families", []))
     stats = {}  # (family, model) -> [squared error, output pixels, silent errors, lit pixels, confidence sum, n]
     for f in split_files(data, split)[: limit or None]:
         with np.load(f, allow_pickle=False) as z:
             family = str(z["family"]) if "family" in z else info.get("scene", "?")
-        image, _, truth = load_sample(f)
+        image, label, truth = load_sample(f)
         for name, predict in models:
-            depth, confidence = predict.infer(image) if hasattr(predict, "infer") else (predict(image), None)
+            depth, confidence = (label, None) if predict is None else \
+                predict.infer(image) if hasattr(predict, "infer") else (predict(image), None)
             ok = np.isfinite(depth) & np.isfinite(truth)
             d = depth[ok].astype(np.float64) - truth[ok]
             sure = np.zeros(1) if confidence is None else confidence[np.isfinite(confidence) & np.isfinite(truth)]

@@ -564,20 +564,25 @@ def projector_shadow(rig: Rig, depth: np.ndarray, cam: CameraIntrinsics, step_px
     return shadow
 
 
-def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """image sampled at fractional pixel coordinates (x, y), linear between pixel centres, the border
-    extended (cv2.remap rounds the fractions to 1/32 pixel: a 0.008 rad phase error at the carrier)."""
-    h, w = image.shape
-    x = np.clip(x, 0, w - 1)
-    y = np.clip(y, 0, h - 1)
-    x0 = np.minimum(np.floor(x).astype(np.intp), w - 2)
-    y0 = np.minimum(np.floor(y).astype(np.intp), h - 2)
-    fx, fy = x - x0, y - y0
-    flat = image.ravel()
-    i = y0 * w + x0
-    top = flat[i] * (1 - fx) + flat[i + 1] * fx
-    bottom = flat[i + w] * (1 - fx) + flat[i + w + 1] * fx
-    return top * (1 - fy) + bottom * fy
+class Bilinear:
+    """Sampling images of one size at fixed fractional pixel coordinates (x, y), linear between pixel
+    centres, the border extended: the indices and weights are worked out once (cv2.remap rounds the
+    fractions to 1/32 pixel, a 0.008 rad phase error at the carrier)."""
+
+    def __init__(self, shape: tuple[int, int], x: np.ndarray, y: np.ndarray):
+        h, w = shape
+        x = np.clip(x, 0, w - 1)
+        y = np.clip(y, 0, h - 1)
+        x0 = np.minimum(np.floor(x).astype(np.intp), w - 2)
+        y0 = np.minimum(np.floor(y).astype(np.intp), h - 2)
+        self.index = y0 * w + x0
+        self.fx, self.fy, self.w = x - x0, y - y0, w
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        flat, i, fx = image.ravel(), self.index, self.fx
+        top = flat[i] * (1 - fx) + flat[i + 1] * fx
+        bottom = flat[i + self.w] * (1 - fx) + flat[i + self.w + 1] * fx
+        return top * (1 - self.fy) + bottom * self.fy
 
 
 class SceneRenderer:
@@ -609,6 +614,7 @@ class SceneRenderer:
         self.lit = inside & surface & ~projector_shadow(rig, depth, canvas, needed=surface)
         self.reflect = (rig.full_scale * rig.gain * albedo * self.lit).astype(np.float32)
         self.crop = (slice(m, m + rig.height), slice(m, m + rig.width))
+        self._bilinear = None  # for full pattern images, made on first use
 
     def image(self, pattern: np.ndarray, max_value: int, rng: np.random.Generator | None = None) -> np.ndarray:
         """What the camera captures while the projector shows this pattern: a 1 x W line (vertical
@@ -619,7 +625,9 @@ class SceneRenderer:
             coord = self.xp if pattern.shape[0] == 1 else self.yp
             light = np.interp(coord, np.arange(pattern.size), pattern.reshape(-1)).astype(np.float32)
         else:
-            light = bilinear(pattern, self.xp, self.yp).astype(np.float32)
+            if self._bilinear is None:
+                self._bilinear = Bilinear(pattern.shape, self.xp, self.yp)
+            light = self._bilinear(pattern).astype(np.float32)
         level = cv2.pow(light, rig.projector_gamma)
         level *= self.reflect
         level += rig.full_scale * rig.ambient
