@@ -72,7 +72,7 @@ paper-model: setup
 # families in the test split only), the fringe-analysing network on 160-pixel crops, export with the
 # confidence threshold chosen on validation data, the per-family table (with FTP on the same composite
 # images), and the failure cases beside the paper's UNet.
-COMPOSITE_EPOCHS ?= 80
+COMPOSITE_EPOCHS ?= 90
 .PHONY: composite-model
 composite-model: setup
 	$(PY) -m training.dataset --out data/fpp --set composite

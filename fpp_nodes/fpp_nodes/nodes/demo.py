@@ -132,7 +132,7 @@ def report(robot: Robot, out: Path) -> None:
           "arrives;\nend-to-end: last pattern shown to cloud here; sequence: first to last pattern shown. "
           "RMSE and cover (of lit pixels) against the simulator's exact depth.")
     if robot.cnn_clouds:
-        print("\nside by side, the single-shot path (cnn_depth on each sequence's first 100-fringe image):")
+        print("\nside by side, the single-shot path (cnn_depth on each sequence's single-shot frame, the composite):")
         print(f"{'cloud':>5} {'image->cloud ms':>15} {'RMSE mm':>8} {'cover':>6}")
         for i, (cloud, arrived) in enumerate(robot.cnn_clouds):
             io.write_ply(out / f"cnn_cloud_{i:02d}.ply", cloud_to_xyz(cloud))
