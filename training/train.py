@@ -106,6 +106,15 @@ class FringeDepthSet(Dataset):
         return torch.from_numpy(image)[None], torch.from_numpy(label)[None], torch.from_numpy(truth)[None]
 
 
+def photometric(rng, image: np.ndarray, amplitudes: np.ndarray):
+    """Augmentation that moves no pixel off the calibration: gain, offset and noise on the image [0, 1];
+    the fringe amplitudes (numerators and denominators) follow the gain."""
+    gain = rng.uniform(0.8, 1.2)
+    image = image * gain + rng.uniform(-0.04, 0.04)
+    image = image + rng.normal(0, rng.uniform(0, 0.008), image.shape)
+    return np.clip(image, 0, 1).astype(np.float32), amplitudes * np.float32(gain)
+
+
 class FringePhaseSet(Dataset):
     """(image [0, 1], fringe numerator/denominator, r in orders, label mm) tensors at full resolution
     for the phase-aware network; r is the multi-shot phase relative to the calibration's
@@ -128,11 +137,8 @@ class FringePhaseSet(Dataset):
     def __getitem__(self, i):
         image, fringe, orders, label = self.items[i]
         image, fringe = network_input(image), fringe.astype(np.float32)
-        if self.augment:  # photometric only; the fringe amplitude follows the gain
-            gain = self.rng.uniform(0.8, 1.2)
-            image = image * gain + self.rng.uniform(-0.04, 0.04)
-            image = image + self.rng.normal(0, self.rng.uniform(0, 0.008), image.shape)
-            image, fringe = np.clip(image, 0, 1).astype(np.float32), fringe * np.float32(gain)
+        if self.augment:
+            image, fringe = photometric(self.rng, image, fringe)
         return (torch.from_numpy(image)[None], torch.from_numpy(fringe), torch.from_numpy(orders)[None],
                 torch.from_numpy(label)[None])
 
@@ -164,11 +170,8 @@ class CompositeSet(Dataset):
             window = (slice(y, y + self.crop), slice(x, x + self.crop))
             image, targets, label = image[window], targets[(slice(None),) + window], label[window]
         image, targets = network_input(image), targets.astype(np.float32)
-        if self.augment:  # photometric only; the fringe amplitudes follow the gain
-            gain = self.rng.uniform(0.8, 1.2)
-            image = image * gain + self.rng.uniform(-0.04, 0.04)
-            image = image + self.rng.normal(0, self.rng.uniform(0, 0.008), image.shape)
-            image, targets = np.clip(image, 0, 1).astype(np.float32), targets * np.float32(gain)
+        if self.augment:
+            image, targets = photometric(self.rng, image, targets)
         return torch.from_numpy(image)[None], torch.from_numpy(targets), torch.from_numpy(label)[None]
 
 
