@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import yaml
 
-from .calibration import Calibration, CalibrationError
+from .calibration import Calibration
 from .patterns import PatternError, PatternSet
 from .reconstruct import CompositeDecoder, QualityLimits, depth_terms, drop_flying_pixels, full_scale
 
@@ -84,7 +84,7 @@ class DepthModel:
                 self.min_confidence = float(self.card["decoding"]["min_confidence"])
                 self.decoder = (PhaseOrderDecoder(calibration) if self.output == "fringe_order" else
                                 CompositeDecoder(calibration, tuple(self.card["decoding"]["depth_range_mm"])))
-            except (KeyError, TypeError, ValueError, CalibrationError) as e:
+            except (KeyError, TypeError, ValueError) as e:  # CalibrationError and PhaseError are ValueErrors
                 raise ModelError(f"model card {card_path} lacks the calibration or decoding of a phase-aware "
                                  f"model ({type(e).__name__}: {e})") from None
             if self.downsample != 1:
