@@ -67,7 +67,12 @@ def order_separation(rig: Rig, orders: int, row_period_px: float, depth_range_mm
 def main():
     print(describe({"numpy/opencv": 1}, ("numpy", "cv2")))
     rig = Rig()
-    print(f"\nthe code's design: the closest two orders of {SURFACE_DEPTH_MM[0]:g}-{SURFACE_DEPTH_MM[1]:g} mm "
+    u, v = np.arange(rig.width)[None, :], np.arange(rig.height)[:, None]
+    model = Calibration.load(default_calibration_path()).model
+    span = np.abs(np.subtract(*(model.phase_at_depth(z, u, v) for z in SURFACE_DEPTH_MM))) / (2 * np.pi)
+    print(f"\nthe working range {SURFACE_DEPTH_MM[0]:g}-{SURFACE_DEPTH_MM[1]:g} mm spans {span.min():.1f}-{span.max():.1f} "
+          "fringe orders of the carrier across the image")
+    print(f"the code's design: the closest two orders of {SURFACE_DEPTH_MM[0]:g}-{SURFACE_DEPTH_MM[1]:g} mm "
           "(rad, the rig's exact geometry; half of it is every decision's margin)")
     print(f"{'orders told apart':>18} {'row period px':>14} {'closest (rad)':>14} {'2 pi / orders':>14}")
     for orders, period in ((32, 12.8), (36, 12.8), (40, 12.8), (32, 17.0), (36, 17.0), (40, 17.0), (36, 25.6)):
