@@ -22,7 +22,7 @@ import yaml
 
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.model import trusted_single_shot
-from fpp_nodes.core.reconstruct import reconstruct_ftp
+from fpp_nodes.core.reconstruct import CompositeDecoder, reconstruct_ftp
 from fpp_nodes.core.simulation import SURFACE_DEPTH_MM
 from fpp_nodes.core.workflow import fringe_depth_mm
 
@@ -86,8 +86,8 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
     calibration = Calibration.from_dict(info["calibration"])
     if calibration.code_model is not None:  # the classical baseline on our pattern
-        models.append(("FTP (composite)", lambda image: reconstruct_ftp(image, calibration,
-                                                                       depth_range_mm=SURFACE_DEPTH_MM).depth_mm))
+        decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+        models.append(("FTP (composite)", lambda image: reconstruct_ftp(image, calibration, decoder=decoder).depth_mm))
     models.append(("multi-shot (the label)", None))  # what all the sequence's images measure: the reference
     held_out = set(info.get("held_out_families", []))
     stats = {}  # (family, model) -> [squared error, output pixels, silent errors, lit pixels, confidence sum, n]

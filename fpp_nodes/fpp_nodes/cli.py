@@ -23,7 +23,7 @@ from .core import io, pictures
 from .core.calibration import Calibration, CalibrationError, CameraIntrinsics, back_project
 from .core.metrics import depth_errors
 from .core.patterns import PatternSet, generate_patterns
-from .core.reconstruct import PspReconstructor, QualityLimits, Reconstruction, reconstruct_ftp
+from .core.reconstruct import CompositeDecoder, PspReconstructor, QualityLimits, Reconstruction, reconstruct_ftp
 from .core.simulation import Rig, SCENE_KINDS, SURFACE_DEPTH_MM, make_scene, render, scene_from_file
 from .core.workflow import (CALIBRATION_DEPTHS_MM, calibrate_from_planes, fringe_depth_mm, held_out_scenes, score,
                             simulated_calibration)
@@ -122,7 +122,8 @@ def _reconstruct(images: np.ndarray, calibration: Calibration, method: str, limi
         quality = confidence if confidence is not None else np.isfinite(depth).astype(np.float32)
         return Reconstruction(depth, back_project(depth, calibration.camera), np.isfinite(depth), quality,
                               np.full(depth.shape, np.nan, np.float32))
-    return reconstruct_ftp(images[index], calibration, limits, SURFACE_DEPTH_MM)
+    decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM) if calibration.code_model is not None else None
+    return reconstruct_ftp(images[index], calibration, limits, decoder)
 
 
 def write_pictures(out: Path, depth_mm: np.ndarray, xyz_mm: np.ndarray | None = None, truth_mm: np.ndarray | None = None,
@@ -211,14 +212,14 @@ def cmd_demo(args) -> None:
     calibration, residuals = simulated_calibration(rig, patterns, seed=args.seed)
     calibration.save(out / "calibration.yaml")
     print("  fit RMSE per plane (um): " + ", ".join(f"{r * 1000:.1f}" for r in residuals))
-    psp = PspReconstructor(calibration)
+    psp, decoder = PspReconstructor(calibration), CompositeDecoder(calibration, SURFACE_DEPTH_MM)
     rows, written = [], []
     for name, scene, seed in tqdm(list(held_out_scenes(rig, args.scenes, args.seed + 1000)), desc="scenes", disable=None):
         capture = render(rig, scene, patterns, np.random.default_rng(seed))
         start = time.perf_counter()
         multi = psp(capture.images)
         psp_ms = (time.perf_counter() - start) * 1000
-        single = reconstruct_ftp(capture.images[patterns.single_shot_index], calibration, depth_range_mm=SURFACE_DEPTH_MM)
+        single = reconstruct_ftp(capture.images[patterns.single_shot_index], calibration, decoder=decoder)
         result = score(multi, capture.depth_mm, capture.valid, calibration, rig.noise_sigma, name)
         ftp = depth_errors(single.depth_mm, capture.depth_mm, capture.valid, fringe_depth_mm(calibration, multi.phase))
         folder = out / name

@@ -166,8 +166,9 @@ class CompositeDecoder:
     2 pi off. A pixel keeps its order only where it is the order nearest the median phase of the 5 x 5
     pixels around it (taken twice); its confidence is the vote: the share of the pixels in the
     VOTE_WINDOW around it that keep their order so (a check of each pixel's code residual as well
-    bought no coverage at equal silent errors on validation data). Depth is NaN where a pixel does not, below min_confidence and where the image shows
-    no fringes: the decoder never adopts an order a pixel's own code did not give.
+    bought no coverage at equal silent errors on validation data). Depth is NaN where a pixel does
+    not, below min_confidence and where the image shows no fringes: the decoder never adopts an order
+    a pixel's own code did not give.
     """
 
     def __init__(self, calibration: Calibration, depth_range_mm: tuple[float, float]):
@@ -195,17 +196,18 @@ class CompositeDecoder:
         # the candidates inside the working range, with half an order to spare at each end
         self.first = np.floor((CODE_ORDERS - span) / 2 - 0.5).astype(np.float32)
         self.last = np.ceil((CODE_ORDERS + span) / 2 + 0.5).astype(np.float32)
-        self.min_separation = self._separation(calibration, ends, u[:, ::8], v[::8])
+        self.min_separation = self._separation(calibration, ends, u, v)
         self.terms = depth_terms(calibration)
 
     @staticmethod
     def _row(calibration: Calibration, phase, u, v):
         return calibration.code_row_phase_at_depth(calibration.model.depth(phase, u, v), u, v)
 
-    def _separation(self, calibration: Calibration, ends, u, v) -> float:
-        """How close the codes of two orders in the working range come, over a grid of pixels (rad)."""
-        lo = np.minimum(ends[0], ends[1])[::8, ::8]
-        hi = np.maximum(ends[0], ends[1])[::8, ::8]
+    def _separation(self, calibration: Calibration, ends, u, v, step: int = 8) -> float:
+        """How close the codes of two orders in the working range come, over every step-th pixel (rad)."""
+        u, v = u[:, ::step], v[::step]
+        lo = np.minimum(ends[0], ends[1])[::step, ::step]
+        hi = np.maximum(ends[0], ends[1])[::step, ::step]
         codes, inside = [], []
         for k in range(int(np.ceil((hi - lo).max() / TWO_PI)) + 1):
             phase = lo + TWO_PI * k
@@ -284,12 +286,13 @@ def composite_ftp_phases(image: np.ndarray, calibration: Calibration):
 
 
 def reconstruct_ftp(image: np.ndarray, calibration: Calibration, limits: QualityLimits = QualityLimits(),
-                    depth_range_mm: tuple[float, float] | None = None) -> Reconstruction:
+                    decoder: CompositeDecoder | None = None) -> Reconstruction:
     """Single-shot baseline: Takeda's FTP wrapped phase, then the same rational model.
 
     With the composite (a calibration with a code model) the code grating's own lobe tells each
-    pixel's fringe order over depth_range_mm (CompositeDecoder; both lobes where the calibration puts
-    them at the reference depth). With the paper's image there is no order to tell: the phase is
+    pixel's fringe order through decoder (a CompositeDecoder for this calibration and the working
+    range: made once by the caller, it is costly to make); both lobes are taken where the calibration
+    puts them at the reference depth. With the paper's image there is no order to tell: the phase is
     unwrapped spatially, and the global multiple of 2 pi is chosen to put the median pixel at the
     calibration's reference depth (the background), as a reference-plane FTP set-up does.
     """
@@ -297,21 +300,21 @@ def reconstruct_ftp(image: np.ndarray, calibration: Calibration, limits: Quality
     image = np.asarray(image)
     if image.shape != (cal.camera.height, cal.camera.width):
         raise PhaseError(f"expected one {cal.camera.width}x{cal.camera.height} image, got shape {image.shape}")
-    vertical = cal.patterns.orientation == "vertical"
     u = np.arange(cal.camera.width, dtype=np.float64)[None, :]
     v = np.arange(cal.camera.height, dtype=np.float64)[:, None]
-    reference = cal.model.phase_at_depth(cal.reference_depth_mm, u, v) * np.ones(image.shape)
     if cal.code_model is not None:
-        if depth_range_mm is None:
-            raise PhaseError("the composite's FTP needs the working range its code spans (depth_range_mm)")
+        if decoder is None:
+            raise PhaseError("the composite's FTP needs a CompositeDecoder for the working range its code spans")
         carrier, code, amplitude = composite_ftp_phases(image, cal)
         fringes = amplitude >= limits.min_modulation * full_scale(image.dtype)
         out = np.stack([np.sin(carrier), np.cos(carrier), np.sin(code), np.cos(code)])
-        depth, _ = CompositeDecoder(cal, depth_range_mm)(out, FTP_MIN_CONFIDENCE, fringes)
+        depth, _ = decoder(out, FTP_MIN_CONFIDENCE, fringes)
         depth, valid = trusted_depth(depth, np.isfinite(depth), limits.max_depth_step_mm)
         phase = cal.model.phase_at_depth(depth, u, v)
         return Reconstruction(depth, back_project(depth, cal.camera), valid, amplitude.astype(np.float32),
                               phase.astype(np.float32))
+    vertical = cal.patterns.orientation == "vertical"
+    reference = cal.model.phase_at_depth(cal.reference_depth_mm, u, v) * np.ones(image.shape)
     wrapped, amplitude = ftp_wrapped_phase(image, vertical)
     # The lobe's phase grows along +x; flip it where the projector phase falls along +x.
     along = reference[:, -1] - reference[:, 0] if vertical else reference[-1, :] - reference[0, :]
