@@ -151,7 +151,10 @@ def phase_targets(images: np.ndarray, rec, calibration: Calibration) -> dict:
 
 def _write(job):
     kind, seed, path, families, surface_mm = job
-    np.savez_compressed(path, **make_sample(kind, seed, families, surface_mm))
+    partial = path.with_suffix(".part")
+    with open(partial, "wb") as f:
+        np.savez_compressed(f, **make_sample(kind, seed, families, surface_mm))
+    partial.replace(path)  # a stopped run leaves no half-written sample behind
     return path
 
 

@@ -16,6 +16,7 @@ import csv
 import math
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -58,6 +59,7 @@ class TrainConfig:
     augment: bool = True
     limit: int = 0  # use only the first N training samples (0: all)
     crop: int = 0  # train on random square crops of this size (0: whole images); composite only
+    workers: int = 0  # data-loading processes (worth it beside a GPU)
     seed: int = 0
 
     def __post_init__(self):
@@ -65,6 +67,8 @@ class TrainConfig:
             raise ValueError(f"arch must be one of {ARCHITECTURES}, got {self.arch!r}")
         if self.loss not in ("mse", "bce"):
             raise ValueError(f"loss must be mse or bce, got {self.loss!r}")
+        if self.workers < 0:
+            raise ValueError(f"workers must be >= 0, got {self.workers}")
         for name in ("width", "downsample", "epochs", "batch_size", "patience"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -148,16 +152,18 @@ class CompositeSet(Dataset):
     composite network, random crops of crop pixels (0: whole images) when training."""
 
     def __init__(self, files, augment: bool = False, crop: int = 0, seed: int = 0):
-        self.items = []
-        for f in files:
-            image, label, _ = load_sample(f)
-            with np.load(f, allow_pickle=False) as z:
-                if "code" not in z:
-                    raise ValueError(f"{f} has no code targets (make a set with the composite pattern: --set composite)")
-                targets = np.concatenate([z["fringe"], z["code"]])
-            self.items.append((image, targets, label))
+        with ThreadPoolExecutor(os.cpu_count()) as pool:  # unzipping runs outside the GIL
+            self.items = list(pool.map(self._load, files))
         self.augment, self.crop = augment, crop
         self.rng = np.random.default_rng(seed)
+
+    @staticmethod
+    def _load(f):
+        image, label, _ = load_sample(f)
+        with np.load(f, allow_pickle=False) as z:
+            if "code" not in z:
+                raise ValueError(f"{f} has no code targets (make a set with the composite pattern: --set composite)")
+            return image, np.concatenate([z["fringe"], z["code"]]), label
 
     def __len__(self):  # with crops, an epoch still covers about every pixel once
         return len(self.items) * (max(1, self.items[0][0].size // self.crop ** 2) if self.crop and self.items else 1)
@@ -176,6 +182,13 @@ class CompositeSet(Dataset):
 
 
 COMPOSITE_WEIGHTS = (1.0, 1.0, 4.0, 4.0)  # the code grating has half the carrier's amplitude: equal weight in phase
+
+
+def reseed_worker(_):
+    """Each data-loading process draws its own crops and augmentation (a forked copy of the set's
+    generator would repeat the others')."""
+    info = torch.utils.data.get_worker_info()
+    info.dataset.rng = np.random.default_rng(info.seed)
 
 
 def composite_loss(pred, targets):
@@ -319,6 +332,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     rank = dist.get_rank() if distributed else 0
     device = torch.device(f"cuda:{int(os.environ.get('LOCAL_RANK', 0))}" if torch.cuda.is_available() else "cpu")
     torch.manual_seed(config.seed)
+    torch.backends.cudnn.benchmark = True  # fixed crop sizes: let cuDNN pick its fastest kernels
     out = Path(config.out)
     if rank == 0:
         (out / "epochs").mkdir(parents=True, exist_ok=True)
@@ -342,7 +356,8 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
         train_set = FringeDepthSet(train_files, config.downsample, config.augment, config.seed + rank)
         val_set = FringeDepthSet(val_files, config.downsample)
     sampler = DistributedSampler(train_set, seed=config.seed) if distributed else None
-    loader = DataLoader(train_set, config.batch_size, shuffle=sampler is None, sampler=sampler)
+    loader = DataLoader(train_set, config.batch_size, shuffle=sampler is None, sampler=sampler,
+                        num_workers=config.workers, worker_init_fn=reseed_worker, persistent_workers=config.workers > 0)
     val_loader = DataLoader(val_set, config.batch_size)
     showcase = val_set[0]  # one fixed validation image
 
