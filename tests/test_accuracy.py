@@ -1,10 +1,13 @@
 """The multi-shot path on the default noisy rig, calibrated from noisy planes, over held-out scenes."""
+from dataclasses import replace
+
+import cv2
 import numpy as np
 import pytest
 
 from fpp_nodes.core.metrics import depth_errors
-from fpp_nodes.core.reconstruct import PspReconstructor, reconstruct_ftp
-from fpp_nodes.core.simulation import plane_scene, render
+from fpp_nodes.core.reconstruct import PspReconstructor, QualityLimits, reconstruct_ftp
+from fpp_nodes.core.simulation import make_scene, plane_scene, render
 from fpp_nodes.core.workflow import fringe_depth_mm, held_out_scenes, score
 
 
@@ -44,50 +47,56 @@ def test_no_wrong_depth_is_reported_in_shadows(results, rig, patterns, calibrati
     for _, _, capture in results:
         depth = psp(capture.images).depth_mm
         wrong = np.isfinite(depth) & (np.abs(depth - capture.depth_mm) > 1.0)
-        assert wrong.sum() <= 2e-4 * wrong.size  # a few mixed pixels at shadow terminators
+        terminator = cv2.dilate((~capture.valid).astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+        assert not (wrong & ~terminator).any()  # a pixel off by 1 mm is one that defocus lit from across a shadow's edge
+        assert wrong.sum() <= 5e-4 * wrong.size
 
 
-def test_noise_limit_is_what_the_formula_says_on_a_plane(rig, patterns, calibration):
-    """On a plane the measured scatter about the truth must match the formula, not just be below 2x."""
-    capture = render(rig, plane_scene(rig, 1200.0), patterns, np.random.default_rng(11))
-    r = score(PspReconstructor(calibration)(capture.images), capture.depth_mm, capture.valid, calibration,
-              rig.noise_sigma, "plane")
-    assert r.noise_limited_rmse_mm * 0.9 < r.errors.rmse_mm < r.noise_limited_rmse_mm * 1.3, r
+def test_quality_is_the_depth_noise_each_pixel_has(results, calibration):
+    """quality/image: the expected depth noise in mm is what the errors are, scene by scene."""
+    psp = PspReconstructor(calibration)
+    for r, _, capture in results:
+        rec = psp(capture.images)
+        assert np.array_equal(np.isnan(rec.quality), np.isnan(rec.depth_mm))
+        inner = rec.valid & (cv2.erode(capture.valid.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0)
+        normalised = (rec.depth_mm - capture.depth_mm)[inner] / rec.quality[inner]
+        assert 0.8 < np.sqrt(np.mean(normalised ** 2)) < 1.25, r.scene
 
 
-def test_ftp_baseline_is_reported_and_fails_where_it_must(results, rig, patterns, calibration):
-    # on a plane at the reference depth FTP is fine ...
-    capture = render(rig, plane_scene(rig, calibration.reference_depth_mm), patterns, np.random.default_rng(3))
-    plane = reconstruct_ftp(capture.images[patterns.input_index("paper")], calibration.with_papers_single_shot())
-    assert depth_errors(plane.depth_mm, capture.depth_mm, capture.valid).rmse_mm < 0.2
-    # ... on scenes with steps taller than a fringe, spatial unwrapping loses the order
-    for r, ftp, _ in results:
-        assert ftp.order_errors > 0 and ftp.rmse_mm > 10 * r.errors.rmse_mm
+def test_dark_scenes_are_measured_to_their_noise(rig, patterns, calibration):
+    """A dark sculpture (albedo x 0.12: fringes of 6-11 counts, under the 5% of full scale that used to
+    be the cut, which kept none of it): measured where its expected noise is within the limit, and none
+    of it off by 1 mm away from shadows; a looser limit trades noise for coverage."""
+    scene = make_scene(rig, "sculpture", 4000)
+    capture = render(rig, replace(scene, albedo=scene.albedo * 0.12), patterns, np.random.default_rng(4000))
+    edges = cv2.dilate((~capture.valid).astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+    coverage = []
+    for limit in (QualityLimits.max_depth_noise_mm, 0.3):
+        rec = PspReconstructor(calibration, QualityLimits(max_depth_noise_mm=limit))(capture.images)
+        errors = depth_errors(rec.depth_mm, capture.depth_mm, capture.valid)
+        assert errors.rmse_mm < limit, errors
+        coverage.append(errors.coverage)
+    assert coverage[0] > 0.15 and coverage[1] > 0.9, coverage
+    rec = PspReconstructor(calibration)(capture.images)
+    assert np.nanmax(np.abs(rec.depth_mm - capture.depth_mm)[~edges]) < 1.0
 
 
-@pytest.mark.parametrize("seed", [1000, 1002])
-def test_the_papers_unet_on_fresh_scenes_of_its_family(rig, patterns, seed):
-    """The README's figures for the paper's UNet (0.43-0.53 mm against the exact depth on sculptures it
-    never saw, about 99% of lit pixels covered), on freshly rendered held-out scenes (training seeds
-    start at 100000)."""
-    from fpp_nodes.core.model import DepthModel, paper_model_path
-    from fpp_nodes.core.simulation import make_scene
-    capture = render(rig, make_scene(rig, "sculpture", seed), patterns, np.random.default_rng(seed))
-    depth = DepthModel(paper_model_path())(capture.images[patterns.input_index("paper")])
-    errors = depth_errors(depth, capture.depth_mm, capture.valid)
-    assert errors.rmse_mm < 0.5 and errors.coverage > 0.99, errors
+def test_the_fast_phase_costs_no_accuracy(rig, patterns, calibration):
+    """8-bit images go through cv2.phase (float32, within 2e-4 rad of atan2); the same images as float64
+    through numpy's exact atan2: the depth agrees to float32's rounding at 1.2 m (1.2e-4 mm)."""
+    capture = render(rig, make_scene(rig, "sculpture", 5), patterns, np.random.default_rng(5))
+    psp = PspReconstructor(calibration)
+    fast, exact = psp(capture.images).depth_mm, psp(capture.images.astype(np.float64)).depth_mm
+    both = np.isfinite(fast) & np.isfinite(exact)
+    assert both.sum() > 0.95 * np.isfinite(exact).sum()
+    difference = (fast - exact)[both]
+    assert np.abs(difference).max() < 1e-3 and np.sqrt(np.mean(difference ** 2)) < 3e-4
 
 
-def test_the_shipped_single_shot_model_is_not_silently_wrong_where_the_papers_unet_is(rig):
-    """Issue 10's failure cases (a bump, a sphere, blocks, a tilted plane; in no data set): the paper's
-    UNet gives depth to every lit pixel, most of them off by more than 1 mm; the shipped composite model
-    gives depth to at least 85% of the lit pixels (measured 91-99%), at most 0.5% of it off by more than
-    1 mm on the smooth shapes (measured 0-0.1%) and 3% on the blocks (2.2%: at the step edges)."""
-    from fpp_nodes.core.model import DepthModel, default_model_path, paper_model_path
-    from training.figures import failure_figure
-    _, table = failure_figure([("shipped", DepthModel(default_model_path())), ("paper", DepthModel(paper_model_path()))], rig)
-    rows = {(scene, model): (silent, cover) for scene, model, _, silent, cover in table}
-    for (scene, model), (silent, cover) in rows.items():
-        if model == "shipped":
-            assert cover >= 0.85 and silent <= (0.03 if scene.startswith("blocks") else 0.005), rows
-    assert rows["plane tilted 15 deg", "paper"][0] > 0.5 and rows["plane tilted 15 deg", "paper"][1] > 0.99, rows
+def test_row_bands_give_the_result_in_one_piece(rig, patterns, calibration):
+    capture = render(rig, make_scene(rig, "objects", 6), patterns, np.random.default_rng(6))
+    whole, banded = (PspReconstructor(calibration, threads=t)(capture.images) for t in (1, 3))
+    assert (whole.valid != banded.valid).sum() <= 5  # a noise exactly at the limit may round either way
+    both = whole.valid & banded.valid
+    for name in ("depth_mm", "quality", "phase", "modulation"):
+        np.testing.assert_allclose(getattr(banded, name)[both], getattr(whole, name)[both], rtol=1e-5, atol=1e-5)

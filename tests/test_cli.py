@@ -102,6 +102,7 @@ def bad_inputs(workdir, tmp_path):
         (("reconstruct", scene, "--calibration", bad_cal, "--out", tmp_path / "o"), "missing 'fx'"),
         (("reconstruct", scene, "--calibration", tmp_path / "none.yaml", "--out", tmp_path / "o"), "cannot read calibration"),
         (("reconstruct", scene, "--calibration", cal, "--min-modulation", "-1", "--out", tmp_path / "o"), "min_modulation"),
+        (("reconstruct", scene, "--calibration", cal, "--max-depth-noise", "0", "--out", tmp_path / "o"), "max_depth_noise_mm"),
         (("calibrate", f"{scene}:1200", "--sensor", scene / "sensor.yaml"), "three or more different depths"),
         (("calibrate", f"{scene}:abc", "--sensor", scene / "sensor.yaml"), "not a number"),
         (("evaluate", tmp_path / "none.npy", scene / "depth_gt_mm.npy"), "cannot read"),

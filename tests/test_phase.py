@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from fpp_nodes.core.phase import (PhaseError, ftp_wrapped_phase, phase_shift, unwrap_spatial, unwrap_temporal,
-                                  wrapped_phase)
+from fpp_nodes.core.phase import (PhaseError, ftp_wrapped_phase, phase_noise, phase_shift, unwrap_spatial,
+                                  unwrap_temporal, wrapped_phase)
 
 TWO_PI = 2 * np.pi
 
@@ -34,6 +34,25 @@ def test_eight_bit_images_give_float32_phase_within_rounding():
     assert est.dtype == np.float32
     # rounding to integers moves the phase by at most about sqrt(2)*0.5/100 rad
     assert angle_error(est, phi).max() < 0.008
+
+
+@pytest.mark.parametrize("n", [4, 6])
+def test_phase_noise_is_what_the_images_noise_makes(n):
+    """sqrt(2/N) sigma / B, estimated from the images alone, and it is the phase error they really have."""
+    rng = np.random.default_rng(n)
+    phi = rng.uniform(0, TWO_PI, (200, 200))
+    sigma, b = 2.0, 30.0
+    images = fringes(phi, 100.0, b, n) + rng.normal(0, sigma, (n,) + phi.shape)
+    maps = phase_shift(images)
+    noise = phase_noise(images, maps.modulation)
+    expected = np.sqrt(2.0 / n) * sigma / b
+    assert np.median(noise) == pytest.approx(expected, rel=0.1)
+    assert np.sqrt(np.mean(angle_error(maps.phase, phi) ** 2)) == pytest.approx(expected, rel=0.1)
+
+
+def test_phase_noise_needs_a_residual():
+    with pytest.raises(PhaseError, match="N >= 4"):
+        phase_noise(np.zeros((3, 8, 8)), np.ones((8, 8)))
 
 
 def test_temporal_unwrapping_recovers_absolute_phase_and_flags_bad_orders():

@@ -43,11 +43,20 @@ def test_composed_sensor_with_a_late_subscriber(ros_graph):
     # a subscriber that joins late gets depth images from then on, and the latched truth
     late = collect(robot, Topics.DEPTH, Image)
     info = collect(robot, Topics.DEPTH_INFO, CameraInfo, Qos.INFO)
-    assert robot.spin_until(lambda: len(late) >= 2 and info, 30)
+    quality = collect(robot, Topics.QUALITY, Image)
+    assert robot.spin_until(lambda: len(late) >= 2 and info and len(quality) >= 2, 30)
     depth = image_to_numpy(late[-1])
     assert late[-1].encoding == "32FC1" and depth.shape == (480, 640)
     assert 1.1 < np.nanmedian(depth) < 1.3  # metres
     assert info[-1].k[0] == pytest.approx(Rig().focal_px)
+    # quality: each pixel's expected depth noise in mm, NaN where depth is; this rig's is about 0.024 mm
+    same = {stamp_ns(m.header.stamp): m for m in quality}
+    paired = [(image_to_numpy(m), image_to_numpy(same[stamp_ns(m.header.stamp)])) for m in late
+              if stamp_ns(m.header.stamp) in same]
+    assert paired
+    for depth, noise in paired:
+        assert quality[-1].encoding == "32FC1" and np.array_equal(np.isnan(depth), np.isnan(noise))
+        assert 0.015 < np.nanmedian(noise) < 0.04
 
 
 def test_health_on_diagnostics(ros_graph):

@@ -34,7 +34,7 @@ from tqdm import tqdm
 
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.patterns import CODE_ORDERS
-from fpp_nodes.core.phase import sin_cos_sums
+from fpp_nodes.core.phase import phase_sums
 from fpp_nodes.core.reconstruct import PspReconstructor, full_scale
 from fpp_nodes.core.simulation import Rig, make_scene, random_rig, render
 
@@ -136,15 +136,15 @@ def phase_targets(images: np.ndarray, rec, calibration: Calibration) -> dict:
     the composite's gratings has half a phase-shift pattern's amplitude)."""
     patterns = calibration.patterns
     top = images[patterns.top_frequency_frames]
-    s, c = sin_cos_sums(top)
+    y, x = phase_sums(top)
     scale = 2.0 / (patterns.steps * full_scale(top.dtype))
     targets = {"phase": np.where(np.isfinite(rec.depth_mm), rec.phase, np.nan).astype(np.float32),
-               "fringe": np.stack([-s * scale, c * scale]).astype(np.float16)}
+               "fringe": np.stack([y * scale, x * scale]).astype(np.float16)}
     if patterns.single_shot == "composite":
         u = np.arange(rec.phase.shape[1], dtype=np.float64)[None, :]
         v = np.arange(rec.phase.shape[0], dtype=np.float64)[:, None]
         code = calibration.code_row_phase_at_depth(rec.depth_mm, u, v) + rec.phase / CODE_ORDERS
-        half = 0.5 * np.hypot(s, c) * scale
+        half = 0.5 * np.hypot(y, x) * scale
         targets["code"] = np.stack([half * np.sin(code), half * np.cos(code)]).astype(np.float16)
     return targets
 

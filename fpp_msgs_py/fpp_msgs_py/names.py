@@ -18,7 +18,7 @@ class Topics:
     DEPTH = "depth/image"  # sensor_msgs/Image 32FC1, metres, NaN invalid
     DEPTH_INFO = "depth/camera_info"
     POINTS = "points"  # sensor_msgs/PointCloud2, organized, metres
-    QUALITY = "quality/image"  # sensor_msgs/Image 32FC1: fringe modulation, camera counts
+    QUALITY = "quality/image"  # sensor_msgs/Image 32FC1: expected depth noise, millimetres, NaN invalid
     CONFIDENCE = "confidence/image"  # sensor_msgs/Image 32FC1: P(fringe order right), single shot
     TRUTH = "sim/depth_truth"  # sensor_msgs/Image 32FC1, metres: the simulator's exact depth
     CALIBRATION = "fpp/calibration"  # std_msgs/String, latched: calibration YAML (from a replayed bag)

@@ -165,7 +165,8 @@ def _truth_beside(images: list, truth: str | None) -> np.ndarray | None:
 def cmd_reconstruct(args) -> None:
     calibration = Calibration.load(args.calibration)
     images = io.read_stack(io.image_paths(args.images))
-    limits = QualityLimits(args.min_modulation, max_depth_step_mm=args.max_depth_step)
+    limits = QualityLimits(max_depth_noise_mm=args.max_depth_noise, max_depth_step_mm=args.max_depth_step,
+                           min_modulation=args.min_modulation)
     start = time.perf_counter()
     rec = _reconstruct(images, calibration, args.method, limits, args.model)
     elapsed = time.perf_counter() - start
@@ -283,7 +284,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "composite, or the paper's first image of the highest frequency; cnn runs the "
                         "single-shot network as cnn_depth does)")
     p.add_argument("--model", help="with --method cnn: an ONNX model with its card (default: the shipped one)")
-    p.add_argument("--min-modulation", type=float, default=QualityLimits.min_modulation)
+    p.add_argument("--max-depth-noise", type=float, default=QualityLimits.max_depth_noise_mm,
+                   help="psp: keep pixels whose expected depth noise is at most this, mm")
+    p.add_argument("--min-modulation", type=float, default=QualityLimits.min_modulation,
+                   help="ftp: keep pixels whose fringe lobe is at least this fraction of full scale")
     p.add_argument("--max-depth-step", type=float, default=QualityLimits.max_depth_step_mm)
     p.add_argument("--truth", help="ground-truth depth in mm (.npy/.tiff) for error.png (default: the folder's "
                                    "depth_gt_mm.npy, as fpp simulate writes it)")

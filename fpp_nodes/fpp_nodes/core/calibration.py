@@ -10,10 +10,12 @@ Here z is the depth along the camera's optical axis, in millimetres, (u, v) the 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import astuple, dataclass, replace
+from functools import lru_cache
 from importlib import resources
 from pathlib import Path
 
+import cv2
 import numpy as np
 import yaml
 
@@ -155,13 +157,15 @@ class CameraIntrinsics:
 
 
 def back_project(depth: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
-    """Organized XYZ (H, W, 3) in the camera's optical frame, same units as depth; NaN stays NaN."""
-    x, y = camera.rays()
-    xyz = np.empty(depth.shape + (3,), np.float32)
-    np.multiply(depth, x, out=xyz[..., 0])
-    np.multiply(depth, y, out=xyz[..., 1])
-    xyz[..., 2] = depth
-    return xyz
+    """Organized XYZ (H, W, 3) float32 in the camera's optical frame, same units as depth; NaN stays NaN."""
+    depth = np.asarray(depth, np.float32)
+    x, y = _float32_rays(*astuple(camera))
+    return cv2.merge([cv2.multiply(depth, x), cv2.multiply(depth, y), depth])
+
+
+@lru_cache(maxsize=4)
+def _float32_rays(*camera) -> tuple[np.ndarray, np.ndarray]:
+    return tuple(np.ascontiguousarray(r, np.float32) for r in CameraIntrinsics(*camera).rays())
 
 
 @dataclass

@@ -2,6 +2,7 @@
 unwrapping, rational model) and the single-shot FTP baseline. Pure functions of arrays."""
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -9,8 +10,8 @@ import numpy as np
 
 from .calibration import Calibration, back_project
 from .patterns import CODE_ORDERS, PatternSet
-from .phase import (TWO_PI, PhaseError, ftp_code_phase, ftp_wrapped_phase, sin_cos_sums, unwrap_spatial,
-                    unwrap_temporal, _atan2_positive)
+from .phase import (TWO_PI, PhaseError, ftp_code_phase, ftp_wrapped_phase, phase_and_modulation, phase_noise,
+                    unwrap_spatial, unwrap_temporal, wrapped_phase)
 
 
 @dataclass
@@ -18,21 +19,28 @@ class Reconstruction:
     depth_mm: np.ndarray  # (H, W) float32, NaN where invalid
     xyz_mm: np.ndarray  # (H, W, 3) float32, optical frame, NaN where invalid
     valid: np.ndarray  # (H, W) bool
-    quality: np.ndarray  # (H, W) float32: fringe modulation B (PSP) or lobe amplitude (FTP), image units
+    quality: np.ndarray  # (H, W) float32: PSP the expected depth noise (mm, NaN where invalid); FTP the lobe amplitude
     phase: np.ndarray  # (H, W) unwrapped phase of the highest frequency
+    modulation: np.ndarray | None = None  # (H, W) float32: PSP the fringe modulation B, image units
 
 
 @dataclass(frozen=True)
 class QualityLimits:
-    """Which pixels to trust. min_modulation is a fraction of the camera's full scale; a pixel whose
-    depth differs from a 4-neighbour's by more than max_depth_step_mm mixes two surfaces (a flying
-    pixel at an edge) and is dropped with that neighbour."""
+    """Which pixels to trust. The multi-shot path keeps a pixel whose expected depth noise (its phase
+    noise through the calibration's dz/dphi) is at most max_depth_noise_mm, whose fringe order agrees
+    at every frequency within max_order_residual (rad) and whose top-frequency images are unsaturated.
+    The single-shot FTP baseline keeps a pixel whose lobe amplitude is at least min_modulation of full
+    scale. A pixel whose depth differs from a 4-neighbour's by more than max_depth_step_mm mixes two
+    surfaces (a flying pixel at an edge) and is dropped with that neighbour."""
 
-    min_modulation: float = 0.05
+    max_depth_noise_mm: float = 0.2  # 1 mm is 5 sigma: no pixel off by 1 mm from noise (scripts/quality_cut.py)
     max_order_residual: float = np.pi / 2
     max_depth_step_mm: float = 2.0
+    min_modulation: float = 0.05
 
     def __post_init__(self):
+        if not self.max_depth_noise_mm > 0:
+            raise ValueError(f"max_depth_noise_mm must be > 0, got {self.max_depth_noise_mm}")
         if not 0 <= self.min_modulation < 0.5:
             raise ValueError(f"min_modulation must be in [0, 0.5), got {self.min_modulation}")
         if not 0 < self.max_order_residual < np.pi:
@@ -48,40 +56,43 @@ def full_scale(dtype) -> float:
 
 def drop_flying_pixels(depth: np.ndarray, max_step: float) -> np.ndarray:
     """Mask of pixels whose depth is within max_step of all finite 4-neighbours."""
-    ok = np.isfinite(depth)
-    jump_x = np.abs(depth[:, 1:] - depth[:, :-1]) > max_step
-    jump_y = np.abs(depth[1:, :] - depth[:-1, :]) > max_step
-    ok[:, 1:] &= ~jump_x
-    ok[:, :-1] &= ~jump_x
-    ok[1:, :] &= ~jump_y
-    ok[:-1, :] &= ~jump_y
-    return ok
+    depth = np.asarray(depth, np.float32)
+    jump_x = cv2.compare(cv2.absdiff(depth[:, 1:], depth[:, :-1]), max_step, cv2.CMP_GT)  # NaN: no jump
+    jump_y = cv2.compare(cv2.absdiff(depth[1:, :], depth[:-1, :]), max_step, cv2.CMP_GT)
+    jumps = np.zeros(depth.shape, np.uint8)
+    for jump, one, other in ((jump_x, (slice(None), slice(1, None)), (slice(None), slice(None, -1))),
+                             (jump_y, (slice(1, None), slice(None)), (slice(None, -1), slice(None)))):
+        cv2.bitwise_or(jumps[one], jump, dst=jumps[one])
+        cv2.bitwise_or(jumps[other], jump, dst=jumps[other])
+    return np.isfinite(depth) & (jumps == 0)
 
 
 def multi_frequency_phase(images: np.ndarray, patterns: PatternSet, limits: QualityLimits = QualityLimits()):
-    """Unwrapped phase of the highest frequency from a sequence (F*N phase-shift images in projection
-    order, then the single-shot composite when the set has one), the mask of pixels to trust (well
-    modulated, unsaturated, consistent fringe order) and the modulation of the highest frequency."""
+    """From a sequence (F*N phase-shift images in projection order, then the single-shot composite when
+    the set has one): the unwrapped phase of the highest frequency, the mask of pixels whose fringe
+    order is consistent and whose top-frequency images are unsaturated, that frequency's modulation B
+    and its phase noise (rad, phase.phase_noise)."""
     n = patterns.steps
     if images.ndim != 3 or images.shape[0] != patterns.count:
         raise PhaseError(f"expected {patterns.count} images ({_described(patterns)}), got an array shaped {images.shape}")
-    wrapped = []
-    for i in range(len(patterns.frequencies)):
-        s, c = sin_cos_sums(images[i * n:(i + 1) * n])
-        if i == len(patterns.frequencies) - 1:
-            modulation = cv2.magnitude(s, c)
-            modulation *= 2.0 / n
-        wrapped.append(_atan2_positive(np.negative(s, out=s), c))
+    wrapped = [wrapped_phase(images[i * n:(i + 1) * n]) for i in range(len(patterns.frequencies) - 1)]
+    top = images[patterns.top_frequency_frames]
+    top_phase, modulation = phase_and_modulation(top)
+    wrapped.append(top_phase)
     phase, valid = unwrap_temporal(wrapped, patterns.frequencies, limits.max_order_residual)
-    scale = full_scale(images.dtype)
-    valid &= modulation >= limits.min_modulation * scale
-    if np.issubdtype(images.dtype, np.integer):
-        top = images[patterns.top_frequency_frames]
-        brightest = top[0]
-        for img in top[1:]:
-            brightest = cv2.max(brightest, img)
-        valid &= brightest < scale  # saturated pixels clip the sinusoid
-    return phase.astype(np.float32, copy=False), valid, modulation.astype(np.float32, copy=False)
+    valid &= unsaturated(top)
+    return tuple(a.astype(np.float32, copy=False) if a.dtype != bool else a
+                 for a in (phase, valid, modulation, phase_noise(top, modulation)))
+
+
+def unsaturated(images: np.ndarray) -> np.ndarray:
+    """Pixels below full scale in every image (a clipped sinusoid moves the phase); all of a float stack."""
+    if not np.issubdtype(images.dtype, np.integer):
+        return np.ones(images.shape[1:], bool)
+    brightest = images[0]
+    for img in images[1:]:
+        brightest = cv2.max(brightest, img)
+    return brightest < full_scale(images.dtype)
 
 
 def _described(patterns: PatternSet) -> str:
@@ -96,9 +107,9 @@ def trusted_depth(depth: np.ndarray, valid: np.ndarray, max_step: float) -> tupl
     """Set depth to NaN (in place) where it is not to be trusted: invalid pixels, their 4-neighbours
     (defocus carries fringes from across a shadow edge into them), and flying pixels."""
     valid = cv2.erode(valid.astype(np.uint8), _CROSS).view(bool)
-    depth[~valid] = np.nan
+    np.copyto(depth, np.nan, where=~valid)
     valid = drop_flying_pixels(depth, max_step)
-    depth[~valid] = np.nan
+    np.copyto(depth, np.nan, where=~valid)
     return depth, valid
 
 
@@ -116,12 +127,22 @@ class PspReconstructor:
     """The multi-shot path for one calibration; per-pixel model terms are computed once, here.
 
     Call with the (F*N, H, W) stack in projection order (all steps of frequency 1, then the next).
+    The work is per pixel but for small neighbourhoods, so `threads` bands of rows run at once, each
+    with BAND_HALO rows of its neighbours: the result is the same as in one piece.
     """
 
-    def __init__(self, calibration: Calibration, limits: QualityLimits = QualityLimits()):
+    def __init__(self, calibration: Calibration, limits: QualityLimits = QualityLimits(), threads: int = 2):
+        if calibration.patterns.steps < 4:
+            raise PhaseError(f"the multi-shot path estimates each pixel's noise from the N-step fit: it needs N >= 4 "
+                             f"phase-shift steps, the calibration's pattern set has {calibration.patterns.steps}")
         self.calibration = calibration
         self.limits = limits
         self._ca, self._cb, self._da, self._db = depth_terms(calibration)
+        self._slope = np.abs(self._cb * self._da - self._ca * self._db)  # |dz/dphi| (da + db phi)^2
+        height = calibration.camera.height
+        edges = np.linspace(0, height, max(1, min(threads, height // (4 * BAND_HALO))) + 1).astype(int)
+        self._bands = list(zip(edges[:-1], edges[1:]))
+        self._pool = ThreadPoolExecutor(len(self._bands)) if len(self._bands) > 1 else None
 
     def check(self, images: np.ndarray) -> None:
         cal = self.calibration
@@ -133,16 +154,46 @@ class PspReconstructor:
     def __call__(self, images: np.ndarray) -> Reconstruction:
         images = np.asarray(images)
         self.check(images)
-        phase, valid, modulation = multi_frequency_phase(images, self.calibration.patterns, self.limits)
-        return self._to_depth(phase, valid, modulation)
+        if self._pool is None:
+            depth, valid, noise, phase, modulation = self._band(images, 0, images.shape[1])
+        else:  # each band writes its rows of the outputs
+            shape = images.shape[1:]
+            depth, valid, noise, phase, modulation = outputs = [np.empty(shape, t) for t in (np.float32, bool, *[np.float32] * 3)]
+            for band in [self._pool.submit(self._band, images, *rows, outputs) for rows in self._bands]:
+                band.result()
+        return Reconstruction(depth, back_project(depth, self.calibration.camera), valid, noise, phase, modulation)
 
-    def _to_depth(self, phase, valid, quality) -> Reconstruction:
-        num = cv2.multiply(self._cb, phase)
-        num += self._ca
-        den = cv2.multiply(self._db, phase)
-        den += self._da
-        depth, valid = trusted_depth(cv2.divide(num, den), valid, self.limits.max_depth_step_mm)
-        return Reconstruction(depth, back_project(depth, self.calibration.camera), valid, quality, phase)
+    def _band(self, images: np.ndarray, first: int, last: int, outputs: list | None = None) -> tuple[np.ndarray, ...]:
+        """(depth, valid, depth noise, phase, modulation) of rows first to last, from those rows and
+        BAND_HALO more on each side; written into those rows of outputs where given."""
+        lo, hi = max(0, first - BAND_HALO), min(images.shape[1], last + BAND_HALO)
+        rows = slice(lo, hi)
+        phase, valid, modulation, noise_rad = multi_frequency_phase(images[:, rows], self.calibration.patterns, self.limits)
+        depth, noise_mm = self.depth(phase, noise_rad, rows)
+        valid &= noise_mm <= self.limits.max_depth_noise_mm
+        depth, valid = trusted_depth(depth, valid, self.limits.max_depth_step_mm)
+        np.copyto(noise_mm, np.nan, where=~valid)
+        keep = slice(first - lo, last - lo)
+        results = tuple(a[keep] for a in (depth, valid, noise_mm, phase, modulation))
+        for target, result in zip(outputs or (), results):
+            target[first:last] = result
+        return results
+
+    def depth(self, phase: np.ndarray, noise_rad: np.ndarray, rows: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """The rational model at these rows: depth = (ca + cb phi) / (da + db phi), and the depth noise
+        (mm) a phase noise causes, |dz/dphi| noise_rad, dz/dphi = (cb da - ca db) / (da + db phi)^2."""
+        num = cv2.multiply(self._cb[rows], phase)
+        num += self._ca[rows]
+        den = cv2.multiply(self._db[rows], phase)
+        den += self._da[rows]
+        depth = cv2.divide(num, den)
+        noise = cv2.divide(cv2.multiply(noise_rad, self._slope[rows]), cv2.multiply(den, den))
+        return depth, noise
+
+
+# Rows each band of PspReconstructor reads beyond its own: the phase noise pools 5 x 5 pixels (2 rows),
+# the trust rules erode 1 and drop flying pixels 1 more; 8 leaves room for both.
+BAND_HALO = 8
 
 
 # The composite's confidence is a vote over this window (pixels): on the composite set's validation

@@ -17,6 +17,11 @@ from .simulation import Rig, make_scene, plane_scene, render
 CALIBRATION_DEPTHS_MM = (1100.0, 1150.0, 1200.0, 1250.0, 1300.0)
 
 
+# A plane's pixels that calibrate: phase noise at most this (no depth model yet to say it in mm); about
+# 0.1 mm of depth at the default rig, where a plane's pixels have a tenth of it.
+CALIBRATION_MAX_PHASE_NOISE_RAD = 0.05
+
+
 def calibrate_from_planes(stacks, depths_mm, camera: CameraIntrinsics, patterns: PatternSet,
                           reference_depth_mm: float | None = None, sample_step: int = 4,
                           limits: QualityLimits = QualityLimits()):
@@ -37,7 +42,8 @@ def calibrate_from_planes(stacks, depths_mm, camera: CameraIntrinsics, patterns:
         if images.shape[1:] != (camera.height, camera.width):
             raise CalibrationError(f"plane at {z} mm: images are {images.shape[2]}x{images.shape[1]}, "
                                    f"the camera is {camera.width}x{camera.height}")
-        phase, valid, _ = multi_frequency_phase(images, patterns, limits)
+        phase, valid, _, noise = multi_frequency_phase(images, patterns, limits)
+        valid &= noise <= CALIBRATION_MAX_PHASE_NOISE_RAD
         v, u = np.nonzero(valid)
         if u.size < 100:
             raise CalibrationError(f"plane at {z} mm: only {u.size} usable pixels (no fringes visible?)")
@@ -114,8 +120,8 @@ def score(rec: Reconstruction, truth_depth, truth_valid, calibration: Calibratio
     errors = depth_errors(rec.depth_mm, truth_depth, truth_valid, fringe_depth_mm(calibration, rec.phase))
     u = np.arange(rec.phase.shape[1], dtype=np.float64)[None, :]
     v = np.arange(rec.phase.shape[0], dtype=np.float64)[:, None]
-    mask = np.isfinite(rec.depth_mm) & truth_valid & (rec.quality > 0)
-    std = noise_limited_depth_std(rec.quality[mask], calibration.model.depth_per_radian(rec.phase, u, v)[mask],
+    mask = np.isfinite(rec.depth_mm) & truth_valid & (rec.modulation > 0)
+    std = noise_limited_depth_std(rec.modulation[mask], calibration.model.depth_per_radian(rec.phase, u, v)[mask],
                                   calibration.patterns.steps, np.sqrt(noise_sigma ** 2 + 1.0 / 12.0))
     return SceneResult(name, errors, float(np.sqrt(np.mean(std ** 2))) if std.size else float("nan"))
 

@@ -2,7 +2,8 @@
 
 Subscribes fringe_sequence (K images stacked vertically). Publishes depth/image (32FC1, metres, NaN
 invalid), depth/camera_info, points (organized PointCloud2, metres, optical frame) and quality/image
-(32FC1, fringe modulation in camera counts), each with the sequence's header. Outputs nobody
+(32FC1, each pixel's expected depth noise in millimetres: its phase noise, estimated from the residual of
+the N-step fit, through the calibration's dz/dphi; NaN invalid), each with the sequence's header. Outputs nobody
 subscribes to are not computed; with no subscriber at all, nothing is.
 """
 from __future__ import annotations
@@ -27,8 +28,8 @@ class FppDepth(Node):
         self.health = Health(self)
         calibration, source = load_calibration(self)
         self.limits = QualityLimits(
-            min_modulation=declare(self, "min_modulation", QualityLimits.min_modulation,
-                                   "least fringe modulation kept, fraction of full scale", True),
+            max_depth_noise_mm=declare(self, "max_depth_noise_mm", QualityLimits.max_depth_noise_mm,
+                                       "largest expected depth noise kept (quality/image), mm", True),
             max_depth_step_mm=declare(self, "max_depth_step_mm", QualityLimits.max_depth_step_mm,
                                       "largest depth step between neighbours kept (flying pixels), mm", True))
         self._use(calibration, source)
