@@ -12,6 +12,12 @@ simulated scenes and the same cv2 build, so their times can be compared as a rat
 
 Errors: RMSE in mm over pixels valid in the method's mask and lit in the ground truth; order errors
 are pixels off by more than half a fringe in depth.
+
+First a per-stage table of our path on one scene (each stage's function timed alone, one thread, on
+the whole image), so the next bottleneck is visible; then the whole path (its row bands on --threads
+threads) beside OpenCV's per scene. To see a CPU without AVX-512 on one that has it:
+NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" OPENCV_CPU_DISABLE=AVX512-SKX (the header then
+says so).
 """
 from __future__ import annotations
 
@@ -24,8 +30,10 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fpp_nodes"))
+from fpp_nodes.core.calibration import back_project  # noqa: E402
 from fpp_nodes.core.metrics import depth_errors  # noqa: E402
-from fpp_nodes.core.reconstruct import PspReconstructor  # noqa: E402
+from fpp_nodes.core.phase import phase_and_modulation, phase_noise, unwrap_temporal, wrapped_phase  # noqa: E402
+from fpp_nodes.core.reconstruct import PspReconstructor, multi_frequency_phase, trusted_depth, unsaturated  # noqa: E402
 from fpp_nodes.core.simulation import Rig, make_scene, render  # noqa: E402
 from fpp_nodes.core.workflow import fringe_depth_mm, simulated_calibration  # noqa: E402
 from machine import describe  # noqa: E402  (scripts/, this script's folder)
@@ -39,6 +47,34 @@ def timed(fn, repeat):
         result = fn()
         times.append(time.perf_counter() - start)
     return result, np.array(times) * 1000
+
+
+def stage_table(psp: PspReconstructor, images: np.ndarray, repeat: int) -> None:
+    """The multi-shot path's stages, each timed alone on the whole image in one thread."""
+    patterns, limits = psp.calibration.patterns, psp.limits
+    n = patterns.steps
+    frames = [images[i * n:(i + 1) * n] for i in range(len(patterns.frequencies))]
+    phase, valid, modulation, noise = multi_frequency_phase(images, patterns, limits)
+    wrapped = [wrapped_phase(f) for f in frames[:-1]] + [phase_and_modulation(frames[-1])[0]]
+    depth, _ = psp.depth(phase, noise)
+    stages = [(f"phase, {f} fringe{'s' * (f > 1)}", lambda fr=fr: wrapped_phase(fr)) for f, fr in zip(patterns.frequencies, frames[:-1])]
+    stages += [(f"phase + modulation, {patterns.frequencies[-1]} fringes", lambda: phase_and_modulation(frames[-1])),
+               ("unwrapping (temporal)", lambda: unwrap_temporal(wrapped, patterns.frequencies, limits.max_order_residual)),
+               ("checks: saturation", lambda: unsaturated(frames[-1])),
+               ("checks: phase noise (N-step residual)", lambda: phase_noise(frames[-1], modulation)),
+               ("depth + depth noise (rational model)", lambda: psp.depth(phase, noise)),
+               ("trust: shadow edges, flying pixels", lambda: trusted_depth(depth.copy(), valid.copy(), limits.max_depth_step_mm)),
+               ("XYZ (back-projection)", lambda: back_project(depth, psp.calibration.camera))]
+    one_thread = PspReconstructor(psp.calibration, limits, threads=1)
+    print(f"{'stage':40} {'ms median':>9}")
+    total = 0.0
+    for name, fn in stages:
+        ms = float(np.median(timed(fn, repeat)[1]))
+        total += ms
+        print(f"{name:40} {ms:9.2f}")
+    print(f"{'sum of the stages':40} {total:9.2f}")
+    print(f"{'whole path, 1 thread':40} {np.median(timed(lambda: one_thread(images), repeat)[1]):9.2f}")
+    print(f"{f'whole path, {len(psp._bands)} threads':40} {np.median(timed(lambda: psp(images), repeat)[1]):9.2f}\n")
 
 
 def opencv_psp(rig: Rig, patterns_top: int):
@@ -55,6 +91,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeat", type=int, default=30)
     parser.add_argument("--scenes", default="plane:0,sculpture:1,objects:2")
+    parser.add_argument("--threads", type=int, default=2, help="row bands of our path run at once")
     args = parser.parse_args()
     if not hasattr(cv2, "structured_light"):
         sys.exit("this cv2 has no structured_light module: run with .venv-opencv (make bench)")
@@ -63,12 +100,15 @@ def main():
     patterns = rig.pattern_set()
     three_step = rig.pattern_set(frequencies=(1, patterns.frequencies[-1]), steps=3)
     calibration, _ = simulated_calibration(rig, patterns, seed=0)
-    ours = PspReconstructor(calibration)
+    ours = PspReconstructor(calibration, threads=args.threads)
     sinus = opencv_psp(rig, patterns.frequencies[-1])
     u = np.arange(rig.width, dtype=np.float64)[None, :]
     v = np.arange(rig.height, dtype=np.float64)[:, None]
     print(describe({"cv2 (both methods)": cv2.getNumThreads()}, libs=("numpy", "cv2")))
     print(f"640x480; median of {args.repeat} runs\n")
+    first = args.scenes.split(",")[0].split(":")
+    stage_table(ours, render(rig, make_scene(rig, first[0], int(first[1])), patterns,
+                             np.random.default_rng(int(first[1]))).images, args.repeat)
     print(f"{'scene':14} {'method':34} {'images':>6} {'ms median':>9} {'ms p90':>7} {'RMSE mm':>8} {'cover':>6} {'orders':>7}")
     for item in args.scenes.split(","):
         kind, seed = item.split(":")

@@ -25,6 +25,9 @@ def cpu() -> tuple[str, str]:
         pass
     if flags is None:
         return model, "unknown"
+    if "avx512f" in flags and "X86_V4" in os.environ.get("NPY_DISABLE_CPU_FEATURES", "") \
+            and "AVX512" in os.environ.get("OPENCV_CPU_DISABLE", ""):
+        return model, "AVX2: its AVX-512 disabled for numpy and OpenCV by NPY_DISABLE_CPU_FEATURES, OPENCV_CPU_DISABLE"
     return model, "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "SSE/other"
 
 
