@@ -5,4 +5,6 @@ source "$_fpp_root/.venv/bin/activate"
 source "$_fpp_root/ros_ws/install/setup.bash"
 # PyPI's ROS keeps its own packages (message definitions) in the virtual environment.
 export AMENT_PREFIX_PATH="$AMENT_PREFIX_PATH:$_fpp_root/.venv"
+# Fast DDS with shared-memory segments that hold a whole sequence or cloud (fpp_msgs_py/fastdds.xml).
+export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_fpp_root/fpp_msgs_py/fpp_msgs_py/fastdds.xml}"
 unset _fpp_root

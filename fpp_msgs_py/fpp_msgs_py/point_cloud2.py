@@ -26,9 +26,11 @@ def xyz_to_cloud(xyz: np.ndarray, header=None, intensity: np.ndarray | None = No
         raise ValueError(f"an organized cloud needs an (H, W, 3) array, got {xyz.shape}")
     h, w = xyz.shape[:2]
     dtype = _XYZ if intensity is None else _XYZI
-    points = np.empty((h, w), dtype)
-    points["x"], points["y"], points["z"] = xyz[..., 0], xyz[..., 1], xyz[..., 2]
-    if intensity is not None:
+    if intensity is None:  # (H, W, 3) little-endian float32 already is the packed x, y, z layout
+        points = np.ascontiguousarray(xyz, "<f4")
+    else:
+        points = np.empty((h, w), dtype)
+        points["x"], points["y"], points["z"] = xyz[..., 0], xyz[..., 1], xyz[..., 2]
         points["intensity"] = intensity
     msg = PointCloud2()
     if header is not None:

@@ -24,6 +24,7 @@ from sensor_msgs.msg import Image, PointCloud2
 from fpp_msgs_py import Qos, Topics, cloud_to_xyz, image_to_numpy, stamp_ns
 
 from ..core import io, pictures
+from ..core.calibration import Calibration, default_calibration_path
 
 class Robot(Node):
     """Subscribes to everything a robot and its operator look at, noting when each message arrives."""
@@ -73,9 +74,11 @@ def main(argv=None):
             sensor.wait(timeout=10)
 
 
-def per_cloud(robot: Robot, frames_per_sequence: int = 16) -> list[dict]:
+def per_cloud(robot: Robot, frames_per_sequence: int | None = None) -> list[dict]:
     """Latency of each stage (ms) and accuracy of every cloud received, from the stamps (when each
-    pattern was shown) and the arrival times here."""
+    pattern was shown) and the arrival times here; a sequence has the shipped calibration's frames
+    unless told otherwise."""
+    frames_per_sequence = frames_per_sequence or Calibration.load(default_calibration_path()).patterns.count
     frame_stamps = np.array(sorted(robot.frames))
     period = np.median(np.diff(frame_stamps)) if len(frame_stamps) > 1 else 0
     rows = []
