@@ -123,7 +123,7 @@ def main():
               f"{np.percentile(t_ours, 90):7.1f} {e_ours.rmse_mm:8.4f} {e_ours.coverage:6.1%} {e_ours.order_errors:7d}")
         if not with_opencv:
             continue
-        images3 = [np.ascontiguousarray(img) for img in capture3.images[-3:]]
+        images3 = [np.ascontiguousarray(img) for img in capture3.images[three_step.top_frequency_frames]]
         (wrapped, shadow), t_phase = timed(lambda: sinus.computePhaseMap(images3), args.repeat)
         unwrapped, t_unwrap = timed(lambda: sinus.unwrapPhaseMap(wrapped, (rig.width, rig.height), shadowMask=shadow),
                                     args.repeat)

@@ -44,7 +44,10 @@ SPLITS = ("train", "val", "test")
 SETS = {"single": ("sculpture", (540, 60, 72), 100_000, "paper"), "multi": ("objects", (630, 70, 40), 200_000, "paper"),
         "families": ("families", (1000, 120, 180), 300_000, "paper"),
         "surface": ("families", (600, 48, 96), 400_000, "paper"),
-        "composite": ("families", (360, 40, 120), 500_000, "composite")}
+        "composite": ("families", (360, 40, 120), 500_000, "composite"),
+        "composite_paper": ("families", (360, 40, 120), 500_000, "paper")}
+# composite_paper: the composite set's scenes (the same seeds), the paper's single-shot frame: the two
+# patterns compared on the same scenes with the same training budget (README, Table 1).
 # The families set spans the working volume: backgrounds anywhere in 1100-1300 mm. The surface set puts
 # the background (the work surface) at the calibration's reference depth at the image centre, any tilt:
 # one 100-fringe image cannot tell the fringe order of a surface at an unknown depth (a phase-aware
