@@ -25,7 +25,7 @@ def results(rig, patterns, calibration):
 
 
 def test_multi_shot_is_at_the_noise_limit(results):
-    """The README's claim: 1.03-1.10x the noise limit, about 0.024 mm, on these held-out scenes."""
+    """The README's claim: 1.05-1.11x the noise limit, about 0.024 mm, on these held-out scenes."""
     for r, _, _ in results:
         assert r.errors.rmse_mm <= 1.15 * r.noise_limited_rmse_mm, r
         assert r.errors.rmse_mm < 0.03

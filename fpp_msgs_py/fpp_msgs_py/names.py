@@ -2,9 +2,10 @@
 
 Names are relative, so a namespace (ros2 run ... --ros-args -r __ns:=/left) moves them all.
 QoS: multi-megabyte images and clouds are RELIABLE with a short KEEP_LAST history. Best-effort lost
-most of them across processes (`make bench-stream`: a BEST_EFFORT subscriber got about a quarter of
-the 3.7 MB clouds; README, "The stream at 30 camera frames/s"), and a short history means a slow
-subscriber sees the newest data rather than a growing backlog.
+most of them across processes with Fast DDS's default transports (`make bench-stream`: a BEST_EFFORT
+subscriber got about a quarter of the 3.7 MB clouds; all of them with fastdds.xml beside this file,
+but a subscriber may not have it; README, "The stream at 30 camera frames/s"), and a short history
+means a slow subscriber sees the newest data rather than a growing backlog.
 """
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
