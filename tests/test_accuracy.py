@@ -7,7 +7,7 @@ import pytest
 
 from fpp_nodes.core.metrics import depth_errors
 from fpp_nodes.core.reconstruct import PspReconstructor, QualityLimits, reconstruct_ftp
-from fpp_nodes.core.simulation import make_scene, plane_scene, render
+from fpp_nodes.core.simulation import make_scene, render
 from fpp_nodes.core.workflow import fringe_depth_mm, held_out_scenes, score
 
 

@@ -338,7 +338,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
         (out / "epochs").mkdir(parents=True, exist_ok=True)
 
     train_files = split_files(config.data, "train")[: config.limit or None]
-    val_files, test_files = split_files(config.data, "val"), split_files(config.data, "test")
+    val_files = split_files(config.data, "val")
     if not train_files or not val_files:
         raise ValueError(f"{config.data} has no train or val samples (make them with python -m training.dataset)")
     phase_aware = config.arch in ("phase", "composite")

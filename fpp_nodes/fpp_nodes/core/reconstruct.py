@@ -128,7 +128,7 @@ class PspReconstructor:
 
     Call with the (F*N, H, W) stack in projection order (all steps of frequency 1, then the next).
     The work is per pixel but for small neighbourhoods, so `threads` bands of rows run at once, each
-    with BAND_HALO rows of its neighbours: the result is the same as in one piece.
+    with BAND_HALO rows of its neighbours: the result is the one-piece result to float32 rounding.
     """
 
     def __init__(self, calibration: Calibration, limits: QualityLimits = QualityLimits(), threads: int = 2):
