@@ -7,7 +7,7 @@ import pytest
 
 from fpp_nodes.core.metrics import depth_errors
 from fpp_nodes.core.reconstruct import PspReconstructor, QualityLimits, reconstruct_ftp
-from fpp_nodes.core.simulation import make_scene, render
+from fpp_nodes.core.simulation import make_scene, plane_scene, render
 from fpp_nodes.core.workflow import fringe_depth_mm, held_out_scenes, score
 
 
@@ -100,3 +100,49 @@ def test_row_bands_give_the_result_in_one_piece(rig, patterns, calibration):
     both = whole.valid & banded.valid
     for name in ("depth_mm", "quality", "phase", "modulation"):
         np.testing.assert_allclose(getattr(banded, name)[both], getattr(whole, name)[both], rtol=1e-5, atol=1e-5)
+
+
+def test_noise_limit_is_what_the_formula_says_on_a_plane(rig, patterns, calibration):
+    """On a plane the measured scatter about the truth must match the formula, not just be below 2x."""
+    capture = render(rig, plane_scene(rig, 1200.0), patterns, np.random.default_rng(11))
+    r = score(PspReconstructor(calibration)(capture.images), capture.depth_mm, capture.valid, calibration,
+              rig.noise_sigma, "plane")
+    assert r.noise_limited_rmse_mm * 0.9 < r.errors.rmse_mm < r.noise_limited_rmse_mm * 1.3, r
+
+
+def test_ftp_baseline_is_reported_and_fails_where_it_must(results, rig, patterns, calibration):
+    # on a plane at the reference depth FTP is fine ...
+    capture = render(rig, plane_scene(rig, calibration.reference_depth_mm), patterns, np.random.default_rng(3))
+    plane = reconstruct_ftp(capture.images[patterns.input_index("paper")], calibration.with_papers_single_shot())
+    assert depth_errors(plane.depth_mm, capture.depth_mm, capture.valid).rmse_mm < 0.2
+    # ... on scenes with steps taller than a fringe, spatial unwrapping loses the order
+    for r, ftp, _ in results:
+        assert ftp.order_errors > 0 and ftp.rmse_mm > 10 * r.errors.rmse_mm
+
+
+@pytest.mark.parametrize("seed", [1000, 1002])
+def test_the_papers_unet_on_fresh_scenes_of_its_family(rig, patterns, seed):
+    """The README's figures for the paper's UNet (0.43-0.53 mm against the exact depth on sculptures it
+    never saw, about 99% of lit pixels covered), on freshly rendered held-out scenes (training seeds
+    start at 100000)."""
+    from fpp_nodes.core.model import DepthModel, paper_model_path
+    from fpp_nodes.core.simulation import make_scene
+    capture = render(rig, make_scene(rig, "sculpture", seed), patterns, np.random.default_rng(seed))
+    depth = DepthModel(paper_model_path())(capture.images[patterns.input_index("paper")])
+    errors = depth_errors(depth, capture.depth_mm, capture.valid)
+    assert errors.rmse_mm < 0.5 and errors.coverage > 0.99, errors
+
+
+def test_the_shipped_single_shot_model_is_not_silently_wrong_where_the_papers_unet_is(rig):
+    """Issue 10's failure cases (a bump, a sphere, blocks, a tilted plane; in no data set): the paper's
+    UNet gives depth to every lit pixel, most of them off by more than 1 mm; the shipped composite model
+    gives depth to at least 85% of the lit pixels (measured 91-99%), at most 0.5% of it off by more than
+    1 mm on the smooth shapes (measured 0-0.1%) and 3% on the blocks (2.2%: at the step edges)."""
+    from fpp_nodes.core.model import DepthModel, default_model_path, paper_model_path
+    from training.figures import failure_figure
+    _, table = failure_figure([("shipped", DepthModel(default_model_path())), ("paper", DepthModel(paper_model_path()))], rig)
+    rows = {(scene, model): (silent, cover) for scene, model, _, silent, cover in table}
+    for (scene, model), (silent, cover) in rows.items():
+        if model == "shipped":
+            assert cover >= 0.85 and silent <= (0.03 if scene.startswith("blocks") else 0.005), rows
+    assert rows["plane tilted 15 deg", "paper"][0] > 0.5 and rows["plane tilted 15 deg", "paper"][1] > 0.99, rows
