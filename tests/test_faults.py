@@ -16,9 +16,10 @@ from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import String
 
 from fpp_msgs_py import Frames, Qos, Topics, cloud_to_xyz, header_at, image_to_numpy, numpy_to_image, stamp_ns
-from fpp_nodes.core.calibration import default_calibration_path
+from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.model import default_model_path
 from fpp_nodes.core.patterns import pattern_images
+from fpp_nodes.core.sequence import index_by_line
 from fpp_nodes.core.simulation import Rig, make_scene, render
 from rosgraph import Diagnostics
 from test_ros_sensor import check_clouds, collect, rmse_mm
@@ -156,16 +157,22 @@ def test_a_camera_that_dies_mid_sequence_and_comes_back(ros_graph):
     camera = procs.run("fringe_camera_sim")
     truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
     clouds = collect(robot, Topics.POINTS, PointCloud2)
+    index_of = index_by_line(Calibration.load(SHIPPED_CALIBRATION).patterns)
+    shown = []
+    robot.node.create_subscription(Image, Topics.PATTERN, lambda m: shown.append(index_of.get(image_to_numpy(m).tobytes())),
+                                   Qos.FRAMES)
     diagnostics = Diagnostics(robot)
     check_clouds(robot, clouds, truth)
-    os.killpg(camera.pid, signal.SIGKILL)  # no goodbye: a crash or a pulled cable
+    # mid-sequence (killed at a sequence's end it would break none), no goodbye: a crash or a pulled cable
+    assert robot.spin_until(lambda: shown and shown[-1] == 8, 30)
+    os.killpg(camera.pid, signal.SIGKILL)
     camera.wait()
     robot.spin_until(lambda: False, 2.0)
     before = len(clouds)
     procs.run("fringe_camera_sim")
     assert robot.spin_until(lambda: len(clouds) >= before + 2, 60), procs.logs()
     check_clouds(robot, clouds[before:], truth)
-    assert robot.spin_until(lambda: diagnostics.counter("/capture_sequence", "sequences dropped") >= 1, 60)
+    assert robot.spin_until(lambda: diagnostics.counter("/capture_sequence", "sequences dropped") >= 1, 60), procs.logs()
 
 
 def test_a_slow_subscriber_does_not_hold_back_a_fast_one(ros_graph):
