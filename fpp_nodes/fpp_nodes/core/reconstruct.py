@@ -81,8 +81,9 @@ def multi_frequency_phase(images: np.ndarray, patterns: PatternSet, limits: Qual
     wrapped.append(top_phase)
     phase, valid = unwrap_temporal(wrapped, patterns.frequencies, limits.max_order_residual)
     valid &= unsaturated(top)
-    return tuple(a.astype(np.float32, copy=False) if a.dtype != bool else a
-                 for a in (phase, valid, modulation, phase_noise(top, modulation)))
+    noise = phase_noise(top, modulation)
+    return (phase.astype(np.float32, copy=False), valid, modulation.astype(np.float32, copy=False),
+            noise.astype(np.float32, copy=False))  # float64 images: the sensor's outputs are float32 all the same
 
 
 def unsaturated(images: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ CALIBRATION_DEPTHS_MM = (1100.0, 1150.0, 1200.0, 1250.0, 1300.0)
 
 
 # A plane's pixels that calibrate: phase noise at most this (no depth model yet to say it in mm); about
-# 0.1 mm of depth at the default rig, where a plane's pixels have a tenth of it.
+# 0.1 mm of depth at the default rig, several times what a well-lit plane's pixels have.
 CALIBRATION_MAX_PHASE_NOISE_RAD = 0.05
 
 
