@@ -103,20 +103,18 @@ class FringeDepthSet(Dataset):
 
     def __getitem__(self, i):
         image, label, truth = self.items[i]
-        if self.augment:  # photometric only: moving pixels would move them off the calibration
-            image = image * self.rng.uniform(0.8, 1.2) + self.rng.uniform(-0.04, 0.04)
-            image = image + self.rng.normal(0, self.rng.uniform(0, 0.008), image.shape)
-            image = np.clip(image, 0, 1).astype(np.float32)
+        if self.augment:
+            image, _ = photometric(self.rng, image)
         return torch.from_numpy(image)[None], torch.from_numpy(label)[None], torch.from_numpy(truth)[None]
 
 
-def photometric(rng, image: np.ndarray, amplitudes: np.ndarray):
-    """Augmentation that moves no pixel off the calibration: gain, offset and noise on the image [0, 1];
-    the fringe amplitudes (numerators and denominators) follow the gain."""
+def photometric(rng, image: np.ndarray) -> tuple[np.ndarray, np.float32]:
+    """Augmentation that moves no pixel off the calibration: gain, offset and noise on the image [0, 1].
+    Returns it and the gain, which fringe amplitudes (numerators and denominators) follow."""
     gain = rng.uniform(0.8, 1.2)
     image = image * gain + rng.uniform(-0.04, 0.04)
     image = image + rng.normal(0, rng.uniform(0, 0.008), image.shape)
-    return np.clip(image, 0, 1).astype(np.float32), amplitudes * np.float32(gain)
+    return np.clip(image, 0, 1).astype(np.float32), np.float32(gain)
 
 
 class FringePhaseSet(Dataset):
@@ -142,7 +140,8 @@ class FringePhaseSet(Dataset):
         image, fringe, orders, label = self.items[i]
         image, fringe = network_input(image), fringe.astype(np.float32)
         if self.augment:
-            image, fringe = photometric(self.rng, image, fringe)
+            image, gain = photometric(self.rng, image)
+            fringe = fringe * gain
         return (torch.from_numpy(image)[None], torch.from_numpy(fringe), torch.from_numpy(orders)[None],
                 torch.from_numpy(label)[None])
 
@@ -177,7 +176,8 @@ class CompositeSet(Dataset):
             image, targets, label = image[window], targets[(slice(None),) + window], label[window]
         image, targets = network_input(image), targets.astype(np.float32)
         if self.augment:
-            image, targets = photometric(self.rng, image, targets)
+            image, gain = photometric(self.rng, image)
+            targets = targets * gain
         return torch.from_numpy(image)[None], torch.from_numpy(targets), torch.from_numpy(label)[None]
 
 
