@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
-import subprocess
 import time
 
 import cv2
@@ -26,6 +24,7 @@ from std_msgs.msg import Header
 from fpp_msgs_py import Qos, Topics, numpy_to_image, stamp_ns
 from fpp_nodes.core.model import DepthModel, default_model_path
 from fpp_nodes.core.simulation import Rig, make_scene, render
+from fpp_nodes.processes import start_process, stop_process
 from machine import describe
 
 
@@ -56,8 +55,8 @@ def main():
     full = timed(lambda: model(image), 50)
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(args.domain))
-    node_proc = subprocess.Popen(["ros2", "run", "fpp_nodes", "cnn_depth", "--ros-args", "-p", f"model:={args.model}",
-                                  "-p", f"threads:={args.threads}"], env=env, start_new_session=True)
+    node_proc = start_process(["ros2", "run", "fpp_nodes", "cnn_depth", "--ros-args", "-p", f"model:={args.model}",
+                               "-p", f"threads:={args.threads}"], env, None, None)
     rclpy.init(domain_id=args.domain)
     robot = Node("bench_cnn")
     arrivals = []
@@ -79,8 +78,7 @@ def main():
         while time.monotonic() < end:
             rclpy.spin_once(robot, timeout_sec=0.05)
     finally:
-        os.killpg(node_proc.pid, signal.SIGINT)
-        node_proc.wait(timeout=15)
+        stop_process(node_proc, timeout=15)
         robot.destroy_node()
         rclpy.try_shutdown()
     lat = np.array(arrivals)

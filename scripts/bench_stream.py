@@ -20,9 +20,10 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from fpp_msgs_py import Topics
-from fpp_nodes.nodes.demo import Robot, per_cloud
+from fpp_nodes.nodes.demo import DemoRobot, per_cloud
+from fpp_nodes.processes import NodeProcesses
 from machine import describe
-from streamkit import NodeProcesses, capture_counts, percentile_header, percentile_row
+from streamkit import capture_counts, percentile_header, percentile_row
 
 
 def main():
@@ -37,7 +38,7 @@ def main():
                         ("pattern_projector", ["-p", f"rate:={args.rate}"])):
         procs.start(exe, *params)
     rclpy.init(domain_id=args.domain)
-    robot = Robot()
+    robot = DemoRobot()
     best_effort = []
     robot.create_subscription(PointCloud2, Topics.POINTS, lambda m: best_effort.append(m.header.stamp),
                               QoSProfile(depth=2, reliability=ReliabilityPolicy.BEST_EFFORT))
@@ -52,7 +53,7 @@ def main():
         procs.stop()
         robot.destroy_node()
         rclpy.try_shutdown()
-    counts = capture_counts(procs.log("capture_sequence"))
+    counts = capture_counts(procs.logs("capture_sequence"))
     frames_in, complete, dropped = counts.frames_in, counts.complete, counts.dropped
     rows = per_cloud(robot)
     # the nodes do not set cv2's thread count: each process gets the default this one has

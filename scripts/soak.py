@@ -52,8 +52,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image, PointCloud2
 
 from fpp_msgs_py import Frames, Qos, Topics
+from fpp_nodes.processes import NodeProcesses
 from machine import describe
-from streamkit import NodeProcesses, capture_counts, percentile_header, percentile_row, rss_mb
+from streamkit import capture_counts, percentile_header, percentile_row, rss_mb
 
 PERCENTILES = (50, 95, 99)
 OUTPUTS = {"points": (Topics.POINTS, PointCloud2), "depth": (Topics.DEPTH, Image),
@@ -202,11 +203,12 @@ def main() -> int:
         rclpy.try_shutdown()
     if crashed is not None:
         sys.exit(f"soak: the sensor exited with status {crashed} during the run; logs in {logs}")
-    return report(args, account(robot, t0, t1), rss, robot, logs / "sensor.log", sensor.returncode)
+    return report(args, account(robot, t0, t1), rss, robot, procs, sensor.returncode)
 
 
-def report(args, acc: dict, rss: list, robot: SoakRobot, log: Path, exit_status: int) -> int:
-    bad, counts = robot.bad, capture_counts(log.read_text())
+def report(args, acc: dict, rss: list, robot: SoakRobot, procs: NodeProcesses, exit_status: int) -> int:
+    log = procs.logs_dir  # the sensor's log is in there
+    bad, counts = robot.bad, capture_counts(procs.logs("sensor"))
     minutes = args.minutes
     # the sensor does not set cv2's thread count: it gets the default this process has
     print("\n" + describe({"onnxruntime intra-op (cnn_depth)": args.threads,
@@ -271,7 +273,7 @@ def report(args, acc: dict, rss: list, robot: SoakRobot, log: Path, exit_status:
           f"newest frame only, by design: not a failure); cnn outputs not delivered here though their frame came "
           f"out: points {acc['cnn points']['lost'] - acc['cnn unprocessed']}, "
           f"depth {acc['cnn depth']['lost'] - acc['cnn unprocessed']}")
-    traceback = "Traceback" in log.read_text()
+    traceback = "Traceback" in procs.logs("sensor")
     # On SIGINT the nodes catch KeyboardInterrupt (ExternalShutdownException), shut down and exit 0
     # (fpp_nodes/nodes/common.py spin); anything else is a crash, or -9 where SIGKILL ended a hung shutdown.
     stopped_ok = exit_status == 0 and not traceback

@@ -1,53 +1,16 @@
-"""What the stream benchmarks share (scripts/bench_stream.py, scripts/soak.py): nodes started the way a
-user starts them (`ros2 run fpp_nodes ...`, one process each, logs to files), stopped with SIGINT,
-capture_sequence's shutdown counts read back from its log, and percentile rows.
+"""What the stream benchmarks share (scripts/bench_stream.py, scripts/soak.py): capture_sequence's
+shutdown counts read back from its log, percentile rows and a process's memory (the nodes are started
+with fpp_nodes.processes).
 
 Run the scripts in the environment of scripts/env.bash; this module is imported from scripts/.
 """
 from __future__ import annotations
 
-import os
 import re
-import signal
-import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-
-class NodeProcesses:
-    """`ros2 run fpp_nodes EXE --ros-args ...` processes on one domain, each in its own session (so a
-    signal reaches the whole process group) with stdout and stderr in LOGS/EXE.log."""
-
-    def __init__(self, domain: int, logs: Path):
-        self.env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1",
-                        RCUTILS_LOGGING_BUFFERED_STREAM="0")
-        self.logs, self.procs = Path(logs), []
-
-    def start(self, executable: str, *ros_args: str) -> subprocess.Popen:
-        log = open(self.logs / f"{executable}.log", "w")
-        # ros2 run and the wheels' bootstrapper both exec, so this pid is the node's process
-        proc = subprocess.Popen(["ros2", "run", "fpp_nodes", executable, "--ros-args", *ros_args], env=self.env,
-                                stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-        self.procs.append((proc, log))
-        return proc
-
-    def log(self, executable: str) -> str:
-        return (self.logs / f"{executable}.log").read_text()
-
-    def stop(self, timeout: float = 15.0) -> None:
-        """SIGINT (the nodes print their counts and shut down cleanly), SIGKILL after timeout."""
-        for proc, _ in self.procs:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGINT)
-        for proc, log in self.procs:
-            try:
-                proc.wait(timeout=timeout)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-            log.close()
 
 
 @dataclass

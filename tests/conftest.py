@@ -1,4 +1,3 @@
-import numpy as np
 import pytest
 
 from fpp_nodes.core.simulation import Rig
@@ -33,19 +32,12 @@ def ideal_patterns(ideal_rig):
 
 
 @pytest.fixture
-def pixel_grid():
-    def grid(shape):
-        return np.arange(shape[1], dtype=np.float64)[None, :], np.arange(shape[0], dtype=np.float64)[:, None]
-    return grid
-
-
-@pytest.fixture
 def ros_graph(tmp_path):
     """(processes, robot) on a fresh ROS domain; everything is stopped afterwards."""
-    from rosgraph import Processes, Robot, fresh_domain_id
+    from rosgraph import ProbeNode, fresh_domain_id, node_processes
     domain = fresh_domain_id()
-    procs = Processes(domain, tmp_path)
-    robot = Robot(domain)
+    procs = node_processes(domain, tmp_path)
+    robot = ProbeNode(domain)
     yield procs, robot
     robot.close()
     procs.stop()

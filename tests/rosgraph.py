@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import itertools
 import os
-import signal
 import subprocess
 import time
 from functools import lru_cache
@@ -17,6 +16,8 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+
+from fpp_nodes.processes import NodeProcesses
 
 ROOT = Path(__file__).resolve().parents[1]
 _ids = itertools.count()
@@ -33,40 +34,15 @@ def ros_env() -> dict:
     return dict(item.split("=", 1) for item in out.stdout.decode().split("\0") if "=" in item)
 
 
-class Processes:
-    """ros2 run ... processes, stopped with SIGINT (then SIGKILL) at the end."""
-
-    def __init__(self, domain_id: int, log_dir: Path):
-        self.domain_id, self.log_dir, self.procs = domain_id, log_dir, []
-
-    def run(self, executable: str, *ros_args: str) -> subprocess.Popen:
-        env = dict(ros_env(), ROS_DOMAIN_ID=str(self.domain_id), PYTHONUNBUFFERED="1", RCUTILS_LOGGING_BUFFERED_STREAM="0")
-        log = open(self.log_dir / f"{executable}-{len(self.procs)}.log", "w")
-        args = ["ros2", "run", "fpp_nodes", executable] + (["--ros-args", *ros_args] if ros_args else [])
-        proc = subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-        self.procs.append((proc, log))
-        return proc
-
-    def logs(self) -> str:
-        return "\n".join(Path(log.name).read_text() for _, log in self.procs)
-
-    def stop(self):
-        for proc, _ in self.procs:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGINT)
-        for proc, log in self.procs:
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-            log.close()
+def node_processes(domain_id: int, log_dir: Path) -> NodeProcesses:
+    """ros2 run ... processes on the test's domain, in the environment of scripts/env.bash."""
+    return NodeProcesses(domain_id, log_dir, ros_env())
 
 
-class Robot:
+class ProbeNode:
     """An rclpy node in the test process, in its own context on the test's domain."""
 
-    def __init__(self, domain_id: int, name: str = "test_robot"):
+    def __init__(self, domain_id: int, name: str = "test_probe"):
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = Node(name, context=self.context)

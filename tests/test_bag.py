@@ -10,7 +10,7 @@ from fpp_nodes.bag import BagError, BagWriter, read_bag
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.simulation import Rig
 from fpp_nodes.core.workflow import simulated_calibration
-from rosgraph import Processes, Robot, fresh_domain_id
+from rosgraph import ProbeNode, fresh_domain_id, node_processes
 
 
 def stamp(msg):
@@ -50,14 +50,14 @@ def recorded(tmp_path_factory):
     rig = Rig()
     calibration, _ = simulated_calibration(rig, rig.pattern_set(), seed=1)  # not the shipped one (seed 0)
     calibration.save(d / "cal.yaml")
-    procs, robot = Processes(fresh_domain_id(), d), None
+    procs, robot = node_processes(fresh_domain_id(), d), None
     try:
-        robot = Robot(procs.domain_id)
+        robot = ProbeNode(procs.domain_id)
         clouds = []
         robot.node.create_subscription(PointCloud2, Topics.POINTS, clouds.append, Qos.LARGE)
-        procs.run("sensor", "-p", f"calibration:={d / 'cal.yaml'}", "-p", "scene:=objects", "-p", "seed:=4")
+        procs.start("sensor", "-p", f"calibration:={d / 'cal.yaml'}", "-p", "scene:=objects", "-p", "seed:=4")
         assert robot.spin_until(lambda: len(clouds) >= 1, 60)
-        procs.run("record", "-p", f"output:={d / 'bag'}", "-p", f"calibration:={d / 'cal.yaml'}", "-p", "outputs:=true")
+        procs.start("record", "-p", f"output:={d / 'bag'}", "-p", f"calibration:={d / 'cal.yaml'}", "-p", "outputs:=true")
         assert robot.spin_until(lambda: robot.node.count_subscribers(Topics.PATTERN) >= 3  # camera, capture, record
                                 and robot.node.count_subscribers(Topics.CAMERA_IMAGE) >= 2  # capture, record
                                 and robot.node.count_subscribers(Topics.POINTS) >= 2, 30)  # this robot, record
@@ -75,15 +75,15 @@ def test_replay_reconstructs_identical_clouds_without_the_original_parameters(re
     with Reader(d / "bag") as reader:  # the outputs are in the bag to look at; the replay makes them anew
         assert {"/points", "/depth/image"} <= {c.topic for c in reader.connections if c.msgcount > 0}
     assert Calibration.from_yaml(read_bag(d / "bag").calibration_yaml).to_dict() == Calibration.load(d / "cal.yaml").to_dict()
-    procs = Processes(fresh_domain_id(), tmp_path)
-    robot = Robot(procs.domain_id)
+    procs = node_processes(fresh_domain_id(), tmp_path)
+    robot = ProbeNode(procs.domain_id)
     try:
         clouds = []
         robot.node.create_subscription(PointCloud2, Topics.POINTS, clouds.append, Qos.LARGE)
-        procs.run("capture_sequence")  # started with the shipped calibration, not the bag's
-        procs.run("fpp_depth")
+        procs.start("capture_sequence")  # started with the shipped calibration, not the bag's
+        procs.start("fpp_depth")
         assert robot.spin_until(lambda: robot.node.count_publishers(Topics.POINTS) > 0, 30)
-        player = procs.run("replay", "-p", f"bag:={d / 'bag'}", "-p", "rate:=2.0")
+        player = procs.start("replay", "-p", f"bag:={d / 'bag'}", "-p", "rate:=2.0")
         assert robot.spin_until(lambda: player.poll() is not None, 60) and player.returncode == 0
         robot.spin_until(lambda: False, 2.0)
     finally:
@@ -107,7 +107,7 @@ def test_a_truncated_bag_stops_with_one_error_and_publishes_nothing(recorded, tm
         (broken / f.name).write_bytes(data[: int(len(data) * 0.6)] if f.suffix == ".mcap" else data)
     frames = []
     robot.node.create_subscription(Image, Topics.CAMERA_IMAGE, frames.append, Qos.FRAMES)
-    player = procs.run("replay", "-p", f"bag:={broken}")
+    player = procs.start("replay", "-p", f"bag:={broken}")
     assert robot.spin_until(lambda: player.poll() is not None, 60)
     assert player.returncode == 2 and not frames
     errors = [line for line in procs.logs().splitlines() if "FATAL" in line]

@@ -2,12 +2,12 @@ import numpy as np
 import pytest
 import yaml
 
-from fpp_nodes.core.calibration import Calibration, CalibrationError, RationalModel, back_project
+from fpp_nodes.core.calibration import Calibration, CalibrationError, RationalModel, back_project, pixel_grid
 from fpp_nodes.core.simulation import plane_scene, render
 from fpp_nodes.core.workflow import calibrate_from_planes
 
 
-def test_rig_model_maps_phase_back_to_depth(ideal_rig, ideal_patterns, pixel_grid):
+def test_rig_model_maps_phase_back_to_depth(ideal_rig, ideal_patterns):
     model = ideal_rig.true_model(ideal_patterns)
     u, v = pixel_grid((ideal_rig.height, ideal_rig.width))
     for z in (1100.0, 1200.0, 1290.0):
@@ -18,7 +18,7 @@ def test_rig_model_maps_phase_back_to_depth(ideal_rig, ideal_patterns, pixel_gri
     np.testing.assert_allclose(model.phase_at_depth(1150.0, u, v), expected, atol=1e-9)
 
 
-def test_calibration_from_noise_free_planes_recovers_the_rendering_coefficients(ideal_rig, ideal_patterns, pixel_grid):
+def test_calibration_from_noise_free_planes_recovers_the_rendering_coefficients(ideal_rig, ideal_patterns):
     stacks = [render(ideal_rig, plane_scene(ideal_rig, z), ideal_patterns).images for z in (1100, 1150, 1200, 1250, 1300)]
     calibration, residuals = calibrate_from_planes(stacks, [1100, 1150, 1200, 1250, 1300], ideal_rig.camera(), ideal_patterns)
     true = ideal_rig.true_model(ideal_patterns)
@@ -33,7 +33,7 @@ def test_calibration_from_noise_free_planes_recovers_the_rendering_coefficients(
     assert max(residuals) < 5e-3  # mm: the interpolation ripple, nothing else
 
 
-def test_calibration_of_the_noisy_rig_predicts_depth_to_micrometres(rig, patterns, calibration, pixel_grid):
+def test_calibration_of_the_noisy_rig_predicts_depth_to_micrometres(rig, patterns, calibration):
     true = rig.true_model(patterns)
     u, v = pixel_grid((rig.height, rig.width))
     for z in (1080.0, 1200.0, 1320.0):  # inside and a little beyond the calibrated planes
@@ -98,7 +98,7 @@ def test_back_projection_follows_the_optical_frame(calibration):
     assert xyz[240, 639, 0] > 0 and xyz[479, 320, 1] > 0  # x right, y down
 
 
-def test_the_shipped_calibration_is_what_fpp_demo_makes(rig, patterns, pixel_grid):
+def test_the_shipped_calibration_is_what_fpp_demo_makes(rig, patterns):
     """The shipped file is the seed-0 fit. Coefficients of a least-squares fit move with the BLAS build
     (small terms by 0.2% relative), so compare what matters: the depth both give over the working
     volume, to 1e-4 mm (240x under the sensor's 0.024 mm noise). Another noise seed moves it 1.2e-3 mm."""

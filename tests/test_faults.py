@@ -19,7 +19,7 @@ from fpp_msgs_py import Frames, Qos, Topics, cloud_to_xyz, header_at, image_to_n
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.model import default_model_path
 from fpp_nodes.core.patterns import pattern_images
-from fpp_nodes.core.sequence import index_by_line
+from fpp_nodes.core.sequence import ShownPatterns
 from fpp_nodes.core.simulation import Rig, make_scene, render
 from rosgraph import Diagnostics
 from test_ros_sensor import check_clouds, collect, rmse_mm
@@ -57,7 +57,7 @@ def captured(kind: str, seed: int):
 
 def test_bad_frames_into_the_multi_shot_path(ros_graph):
     procs, robot = ros_graph
-    nodes = [procs.run("capture_sequence"), procs.run("fpp_depth")]
+    nodes = [procs.start("capture_sequence"), procs.start("fpp_depth")]
     patterns, capture, lines = captured("objects", 8)
     pattern_pub = robot.node.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)
     camera_pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
@@ -113,7 +113,7 @@ def test_bad_frames_into_the_multi_shot_path(ros_graph):
 def test_bad_frames_into_the_single_shot_path(ros_graph):
     procs, robot = ros_graph
     # the shipped model on its composite frame: the good frame has a known answer
-    node = procs.run("cnn_depth", "-r", "__ns:=/cnn")
+    node = procs.start("cnn_depth", "-r", "__ns:=/cnn")
     patterns, capture, _ = captured("sculpture", 3)
     good = capture.images[patterns.single_shot_index]
     camera_pub = robot.node.create_publisher(Image, "/cnn/" + Topics.CAMERA_IMAGE, Qos.FRAMES)
@@ -153,23 +153,22 @@ def test_a_camera_that_dies_mid_sequence_and_comes_back(ros_graph):
     counted, nothing is mixed, and clouds come again with full accuracy."""
     procs, robot = ros_graph
     for exe in ("pattern_projector", "capture_sequence", "fpp_depth"):
-        procs.run(exe)
-    camera = procs.run("fringe_camera_sim")
+        procs.start(exe)
+    camera = procs.start("fringe_camera_sim")
     truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
     clouds = collect(robot, Topics.POINTS, PointCloud2)
-    index_of = index_by_line(Calibration.load(SHIPPED_CALIBRATION).patterns)
-    shown = []
-    robot.node.create_subscription(Image, Topics.PATTERN, lambda m: shown.append(index_of.get(image_to_numpy(m).tobytes())),
+    shown = ShownPatterns(Calibration.load(SHIPPED_CALIBRATION).patterns, max_offset_ns=0)
+    robot.node.create_subscription(Image, Topics.PATTERN, lambda m: shown.add(stamp_ns(m.header.stamp), image_to_numpy(m)),
                                    Qos.FRAMES)
     diagnostics = Diagnostics(robot)
     check_clouds(robot, clouds, truth)
     # mid-sequence (killed at a sequence's end it would break none), no goodbye: a crash or a pulled cable
-    assert robot.spin_until(lambda: shown and shown[-1] == 8, 30)
+    assert robot.spin_until(lambda: shown.events and shown.events[-1][1] == 8, 30)
     os.killpg(camera.pid, signal.SIGKILL)
     camera.wait()
     robot.spin_until(lambda: False, 2.0)
     before = len(clouds)
-    procs.run("fringe_camera_sim")
+    procs.start("fringe_camera_sim")
     assert robot.spin_until(lambda: len(clouds) >= before + 2, 60), procs.logs()
     check_clouds(robot, clouds[before:], truth)
     assert robot.spin_until(lambda: diagnostics.counter("/capture_sequence", "sequences dropped") >= 1, 60), procs.logs()
@@ -178,10 +177,10 @@ def test_a_camera_that_dies_mid_sequence_and_comes_back(ros_graph):
 def test_a_slow_subscriber_does_not_hold_back_a_fast_one(ros_graph):
     """A subscriber that takes a second per cloud gets the newest ones it can; the sensor and a fast
     subscriber go on at full rate (KEEP_LAST history: no backlog, no blocking)."""
-    from rosgraph import Robot
+    from rosgraph import ProbeNode
     procs, robot = ros_graph
-    procs.run("sensor")
-    slow = Robot(robot.context.get_domain_id(), "slow_robot")
+    procs.start("sensor")
+    slow = ProbeNode(robot.context.get_domain_id(), "slow_robot")
     slow_got = []
     slow.node.create_subscription(PointCloud2, Topics.POINTS, lambda m: (slow_got.append(m), time.sleep(1.0)), Qos.LARGE)
     stop = threading.Event()
@@ -212,14 +211,14 @@ def test_a_slow_subscriber_does_not_hold_back_a_fast_one(ros_graph):
 ])
 def test_out_of_range_parameters_at_start_are_one_fatal_line(ros_graph, args, message):
     procs, _ = ros_graph
-    proc = procs.run("pattern_projector", *args)
+    proc = procs.start("pattern_projector", *args)
     assert proc.wait(timeout=30) == 2
     assert message in procs.logs() and "Traceback" not in procs.logs()
 
 
 def test_out_of_range_parameters_at_runtime_are_refused_with_the_reason(ros_graph):
     procs, robot = ros_graph
-    projector = procs.run("pattern_projector")
+    projector = procs.start("pattern_projector")
     client = AsyncParameterClient(robot.node, "pattern_projector")
     assert client.wait_for_services(30)
 
@@ -233,7 +232,7 @@ def test_out_of_range_parameters_at_runtime_are_refused_with_the_reason(ros_grap
         raise AssertionError(f"no reply to setting {name} in 60 s")
 
     refused = set_value("rate", ParameterType.PARAMETER_DOUBLE, double_value=-5.0)
-    assert not refused.successful and "rate: must be > 0" in refused.reason
+    assert not refused.successful and "rate must be > 0" in refused.reason
     refused = set_value("steps", ParameterType.PARAMETER_INTEGER, integer_value=2)
     assert not refused.successful and "read-only" in refused.reason
     assert set_value("rate", ParameterType.PARAMETER_DOUBLE, double_value=60.0).successful
@@ -250,7 +249,7 @@ def test_a_missing_or_corrupt_calibration_file_is_one_fatal_line(ros_graph, tmp_
     procs, _ = ros_graph
     path = tmp_path / "calibration.yaml"
     damage(path)
-    proc = procs.run("fpp_depth", "-p", f"calibration:={path}")
+    proc = procs.start("fpp_depth", "-p", f"calibration:={path}")
     assert proc.wait(timeout=30) == 2
     logs = procs.logs()
     assert "[FATAL]" in logs and message in logs and "Traceback" not in logs, logs
@@ -298,7 +297,7 @@ def tampered_model(folder: Path) -> Path:
 ])
 def test_a_missing_corrupt_or_mismatched_model_is_one_fatal_line(ros_graph, tmp_path, make, message):
     procs, _ = ros_graph
-    proc = procs.run("cnn_depth", "-p", f"model:={make(tmp_path)}")
+    proc = procs.start("cnn_depth", "-p", f"model:={make(tmp_path)}")
     assert proc.wait(timeout=60) == 2
     logs = procs.logs()
     assert "[FATAL]" in logs and message in logs and "Traceback" not in logs, logs

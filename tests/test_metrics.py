@@ -1,6 +1,6 @@
 import numpy as np
 
-from fpp_nodes.core.metrics import depth_errors, mre, noise_limited_depth_std, rmse
+from fpp_nodes.core.metrics import ErrorTotals, depth_errors, noise_limited_depth_std
 
 
 def test_rmse_and_mre_over_valid_pixels_only():
@@ -12,8 +12,17 @@ def test_rmse_and_mre_over_valid_pixels_only():
     assert e.mre == (3 / 1000 + 4 / 1000) / 2
     assert e.coverage == 2 / 3
     assert e.order_errors == 2  # both errors exceed half of 5 mm
-    mask = np.array([[True, False], [False, False]])
-    assert rmse(pred, truth, mask) == 3.0 and mre(pred, truth, mask) == 0.003
+    first_only = depth_errors(pred, truth, truth_valid=np.array([[True, False], [False, False]]))
+    assert first_only.rmse_mm == 3.0 and first_only.mre == 0.003 and first_only.coverage == 1.0
+
+
+def test_totals_over_images_are_the_totals_of_their_pixels():
+    truth = np.array([[1000.0, 1000.0], [500.0, np.nan]])
+    a, b = np.array([[1003.0, np.nan], [500.5, 1.0]]), np.array([[np.nan, 996.0], [np.nan, np.nan]])
+    totals = ErrorTotals().add(a, truth, bound=1.0).add(b, truth, bound=1.0)
+    assert totals.compared == 3 and totals.reference == 6 and totals.coverage == 0.5
+    assert np.isclose(totals.rmse, np.sqrt((9 + 16 + 0.25) / 3)) and totals.over == 2 and totals.share_over == 2 / 3
+    assert np.isnan(ErrorTotals().rmse) and ErrorTotals().coverage == 0
 
 
 def test_noise_limit_formula():

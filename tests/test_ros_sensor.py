@@ -36,7 +36,7 @@ def check_clouds(robot, clouds, truth, count=2, timeout=60):
 
 def test_composed_sensor_with_a_late_subscriber(ros_graph):
     procs, robot = ros_graph
-    procs.run("sensor", "-p", "scene:=objects", "-p", "seed:=3")  # -p reaches every node of the process
+    procs.start("sensor", "-p", "scene:=objects", "-p", "seed:=3")  # -p reaches every node of the process
     truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
     clouds = collect(robot, Topics.POINTS, PointCloud2)
     check_clouds(robot, clouds, truth)
@@ -65,7 +65,7 @@ def test_health_on_diagnostics(ros_graph):
     from rosgraph import Diagnostics
     from fpp_nodes.core.model import default_model_path
     procs, robot = ros_graph
-    procs.run("sensor")
+    procs.start("sensor")
     points, cnn_points = collect(robot, Topics.POINTS, PointCloud2), collect(robot, "cnn/" + Topics.POINTS, PointCloud2)
     diagnostics = Diagnostics(robot)
     assert robot.spin_until(lambda: len(points) >= 3 and cnn_points, 60), procs.logs()
@@ -87,7 +87,7 @@ def test_health_on_diagnostics(ros_graph):
 def test_each_node_in_its_own_process(ros_graph):
     procs, robot = ros_graph
     for exe in ("pattern_projector", "fringe_camera_sim", "capture_sequence", "fpp_depth"):
-        procs.run(exe)
+        procs.start(exe)
     truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
     clouds = collect(robot, Topics.POINTS, PointCloud2)
     check_clouds(robot, clouds, truth)
@@ -96,8 +96,8 @@ def test_each_node_in_its_own_process(ros_graph):
 def test_broken_sequences_over_dds_are_dropped_never_mixed(ros_graph):
     """A test node plays projector and camera, with a missing, a duplicated and an out-of-order frame."""
     procs, robot = ros_graph
-    procs.run("capture_sequence")
-    procs.run("fpp_depth")
+    procs.start("capture_sequence")
+    procs.start("fpp_depth")
     rig = Rig()
     patterns = rig.pattern_set()
     capture = render(rig, make_scene(rig, "objects", 8), patterns, np.random.default_rng(8))
@@ -139,7 +139,7 @@ def test_broken_sequences_over_dds_are_dropped_never_mixed(ros_graph):
 
 def test_a_bad_parameter_is_one_fatal_line(ros_graph):
     procs, _ = ros_graph
-    proc = procs.run("pattern_projector", "-p", "steps:=2")
+    proc = procs.start("pattern_projector", "-p", "steps:=2")
     assert proc.wait(timeout=30) == 2
     assert "steps must be >= 3" in procs.logs() and "Traceback" not in procs.logs()
 

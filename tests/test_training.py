@@ -13,7 +13,7 @@ from fpp_nodes.core.model import DepthModel, ModelError
 from training.dataset import decode_depth, encode_depth, load_phase_targets, load_sample, split_files, write_set
 from training.export import export
 from training.models import build, layer_counts, pad_to_stride
-from training.train import TrainConfig, load_checkpoint, train
+from training.train import TrainConfig, load_checkpoint, model_from_checkpoint, train
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +24,7 @@ def tiny_set(tmp_path_factory):
 @pytest.fixture(scope="module")
 def trained(tiny_set, tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
-    cfg = TrainConfig(data=str(tiny_set), out=str(out), arch="unet", width=4, epochs=1)
+    cfg = TrainConfig(data=str(tiny_set), out=str(out), arch="unet", width=4, epochs=1, depth_offset_mm=1150.0)
     train(cfg)
     return out, cfg
 
@@ -47,7 +47,7 @@ def test_samples_pair_one_fringe_image_with_its_multi_shot_label(tiny_set):
 
 @pytest.mark.parametrize("arch, convs, pools, transposes", [("aen", 23, 5, 5), ("unet", 23, 5, 5), ("fcn", 16, 5, 3)])
 def test_the_papers_networks(arch, convs, pools, transposes):
-    model = build(arch, width=4)
+    model = build(arch, width=4, dropout=0.0, depth_mm=(1200.0, 50.0))
     # AEN / UNet: 22 convolutions + the final 1x1, 5 max-pools, 5 transpose convolutions = 33 layers
     assert layer_counts(model) == {"conv": convs, "maxpool": pools, "transpose": transposes}
     image, (h, w) = pad_to_stride(torch.rand(2, 1, 100, 150))
@@ -61,6 +61,7 @@ def test_training_writes_what_the_paper_shows(trained):
         assert (out / name).is_file(), name
     ckpt = load_checkpoint(out / "last.pt")
     assert ckpt["epoch"] == 1 and ckpt["config"]["arch"] == "unet" and np.isfinite(ckpt["history"][0]["val_rmse_mm"])
+    assert model_from_checkpoint(ckpt)[0].head.depth_offset == 1150.0  # the output's millimetres travel with it
 
 
 def test_resume_goes_on_from_the_checkpoint(trained):
@@ -134,7 +135,7 @@ def test_cnn_depth_node(trained, tmp_path, ros_graph):
     from fpp_nodes.core.calibration import Calibration, default_calibration_path
     # the model reads the paper's frame (its data set's): a rig calibrated to show it
     Calibration.load(default_calibration_path()).with_papers_single_shot().save(tmp_path / "paper.yaml")
-    procs.run("cnn_depth", "-p", f"model:={tmp_path / 'm.onnx'}", "-p", "threads:=1",
+    procs.start("cnn_depth", "-p", f"model:={tmp_path / 'm.onnx'}", "-p", "threads:=1",
               "-p", f"calibration:={tmp_path / 'paper.yaml'}")
     depth, clouds = [], []
     robot.node.create_subscription(Image, Topics.DEPTH, depth.append, Qos.LARGE)
@@ -153,7 +154,7 @@ def test_cnn_depth_node(trained, tmp_path, ros_graph):
     assert d.shape == (480, 640) and 1.0 < np.nanmedian(d) < 1.4 and clouds[0].height == 480
     assert "image rejected: the model takes 640x480 images" in procs.logs()
     (tmp_path / "bad.onnx").write_bytes(b"not a model")
-    bad = procs.run("cnn_depth", "-p", f"model:={tmp_path / 'bad.onnx'}")
+    bad = procs.start("cnn_depth", "-p", f"model:={tmp_path / 'bad.onnx'}")
     assert bad.wait(timeout=60) == 2
     assert "has no card" in procs.logs() and "Traceback" not in procs.logs()
 

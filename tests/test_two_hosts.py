@@ -23,7 +23,6 @@ import itertools
 import json
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -32,6 +31,7 @@ from dataclasses import dataclass
 import pytest
 
 from fpp_msgs_py import Frames
+from fpp_nodes.processes import start_process, stop_process
 from rosgraph import ROOT, fresh_domain_id, ros_env
 
 TIMEOUT_S = 120  # for the robot to see its clouds; the test ends within about TIMEOUT_S + 45 s
@@ -96,16 +96,6 @@ def two_hosts():
         ip("link", "delete", a.veth)  # in case the pair never left this namespace
 
 
-def stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-
-
 def test_discovery_and_large_clouds_between_two_hosts(two_hosts, tmp_path):
     sensor_host, robot_host = two_hosts
     for host in two_hosts:  # lo and the link: nothing else leads out of either host
@@ -116,19 +106,18 @@ def test_discovery_and_large_clouds_between_two_hosts(two_hosts, tmp_path):
                FASTDDS_BUILTIN_TRANSPORTS="UDPv4", PYTHONUNBUFFERED="1", RCUTILS_LOGGING_BUFFERED_STREAM="0")
     rx_before = robot_host.rx_bytes()
     logs = {name: open(tmp_path / f"{name}.log", "w+") for name in ("sensor", "robot", "robot-stderr")}
-    sensor = subprocess.Popen(sensor_host.exec_args("ros2", "run", "fpp_nodes", "sensor", "--ros-args",
-                                                    "-p", "scene:=objects", "-p", "seed:=3"),
-                              env=env, stdout=logs["sensor"], stderr=subprocess.STDOUT, start_new_session=True)
-    robot = subprocess.Popen(robot_host.exec_args(sys.executable, str(ROOT / "tests" / "cloud_probe.py"),
-                                                  "--clouds", "2", "--depths", "1", "--timeout", str(TIMEOUT_S)),
-                             env=env, stdout=logs["robot"], stderr=logs["robot-stderr"], start_new_session=True)
+    sensor = start_process(sensor_host.exec_args("ros2", "run", "fpp_nodes", "sensor", "--ros-args",
+                                                 "-p", "scene:=objects", "-p", "seed:=3"), env, logs["sensor"])
+    robot = start_process(robot_host.exec_args(sys.executable, str(ROOT / "tests" / "cloud_probe.py"),
+                                               "--clouds", "2", "--depths", "1", "--timeout", str(TIMEOUT_S)),
+                          env, logs["robot"], logs["robot-stderr"])
     try:
         deadline = time.monotonic() + TIMEOUT_S + 30  # the robot gives up by itself after TIMEOUT_S
         while robot.poll() is None and sensor.poll() is None and time.monotonic() < deadline:
             time.sleep(0.5)
     finally:
-        stop(robot)
-        stop(sensor)
+        stop_process(robot)
+        stop_process(sensor)
         text = {}
         for name, log in logs.items():
             log.seek(0)

@@ -32,7 +32,7 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from fpp_nodes.core.calibration import Calibration, default_calibration_path
+from fpp_nodes.core.calibration import Calibration, default_calibration_path, pixel_grid
 from fpp_nodes.core.patterns import CODE_ORDERS
 from fpp_nodes.core.phase import phase_sums
 from fpp_nodes.core.reconstruct import PspReconstructor, full_scale
@@ -144,8 +144,7 @@ def phase_targets(images: np.ndarray, rec, calibration: Calibration) -> dict:
     targets = {"phase": np.where(np.isfinite(rec.depth_mm), rec.phase, np.nan).astype(np.float32),
                "fringe": np.stack([y * scale, x * scale]).astype(np.float16)}
     if patterns.single_shot == "composite":
-        u = np.arange(rec.phase.shape[1], dtype=np.float64)[None, :]
-        v = np.arange(rec.phase.shape[0], dtype=np.float64)[:, None]
+        u, v = pixel_grid(rec.phase.shape)
         code = calibration.code_row_phase_at_depth(rec.depth_mm, u, v) + rec.phase / CODE_ORDERS
         half = 0.5 * np.hypot(y, x) * scale
         targets["code"] = np.stack([half * np.sin(code), half * np.cos(code)]).astype(np.float16)
@@ -202,14 +201,14 @@ def write_bag_set(bag, out, split: str = "train", calibration_path: str | None =
     from fpp_msgs_py import image_to_numpy, stamp_ns  # rosbags' messages have sensor_msgs' fields
 
     from fpp_nodes.bag import TYPESTORE, read_bag
-    from fpp_nodes.core.sequence import SequenceAssembler, index_by_line
+    from fpp_nodes.core.sequence import SequenceAssembler, ShownPatterns
 
     recording = read_bag(bag)
     calibration = (Calibration.from_yaml(recording.calibration_yaml) if calibration_path is None and recording.calibration_yaml
                    else Calibration.load(calibration_path or default_calibration_path()))
     patterns = calibration.patterns
-    psp, lines, assembler = PspReconstructor(calibration), index_by_line(patterns), SequenceAssembler(patterns.count)
-    shown, count = [], 0
+    psp, assembler = PspReconstructor(calibration), SequenceAssembler(patterns.count)
+    shown, count = ShownPatterns(patterns, int(max_time_offset_s * 1e9)), 0
     folder = Path(out) / split
     folder.mkdir(parents=True, exist_ok=True)
     for topic, msgtype, _, data in recording.messages:
@@ -219,13 +218,12 @@ def write_bag_set(bag, out, split: str = "train", calibration_path: str | None =
         stamp = stamp_ns(msg.header.stamp)
         image = image_to_numpy(msg)
         if topic.endswith("projector/pattern"):
-            if image.tobytes() in lines:
-                shown.append((stamp, lines[image.tobytes()]))
+            shown.add(stamp, image)
             continue
-        match = min(shown[-4 * patterns.count:], key=lambda e: abs(e[0] - stamp), default=None)
-        if match is None or abs(match[0] - stamp) > max_time_offset_s * 1e9:
+        index = shown.match(stamp)
+        if index is None:
             continue
-        sequence, _ = assembler.add(match[1], stamp, image.copy())
+        sequence, _ = assembler.add(index, stamp, image.copy())
         if sequence is not None:
             rec = psp(sequence.images)
             composite = phase_targets(sequence.images, rec, calibration) if patterns.single_shot == "composite" else {}

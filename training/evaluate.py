@@ -20,8 +20,9 @@ import numpy as np
 import torch
 import yaml
 
-from fpp_nodes.core.calibration import Calibration
-from fpp_nodes.core.model import trusted_single_shot
+from fpp_nodes.core.calibration import Calibration, pixel_grid
+from fpp_nodes.core.metrics import ErrorTotals
+from fpp_nodes.core.model import network_input, trusted_single_shot
 from fpp_nodes.core.reconstruct import CompositeDecoder, reconstruct_ftp
 from fpp_nodes.core.simulation import SURFACE_DEPTH_MM
 from fpp_nodes.core.workflow import fringe_depth_mm
@@ -36,40 +37,13 @@ def predict_full(model, image: np.ndarray, downsample: int) -> np.ndarray:
     """What cnn_depth does: scale to [0, 1], shrink, pad to the stride, run, crop, grow back, keep
     only the pixels to trust."""
     h, w = image.shape
-    x = image.astype(np.float32) / np.iinfo(image.dtype).max
+    x = network_input(image)
     if downsample > 1:
         x = cv2.resize(x, (w // downsample, h // downsample), interpolation=cv2.INTER_AREA)
     padded, (ph, pw) = pad_to_stride(torch.from_numpy(x)[None, None])
     depth = model(padded)[0, 0, :ph, :pw].numpy()
     depth = cv2.resize(depth, (w, h), interpolation=cv2.INTER_LINEAR) if downsample > 1 else depth
     return trusted_single_shot(depth, image)
-
-
-class Errors:
-    def __init__(self):
-        self.sq = self.rel = self.n = self.n_ref = self.orders = 0.0
-
-    def add(self, pred, ref, half_fringe_mm=None):
-        ok = np.isfinite(pred) & np.isfinite(ref)
-        d = pred[ok].astype(np.float64) - ref[ok]
-        self.sq += float(d @ d)
-        self.rel += float(np.sum(np.abs(d) / ref[ok]))
-        self.n += int(ok.sum())
-        self.n_ref += int(np.isfinite(ref).sum())
-        if half_fringe_mm is not None:
-            self.orders += int(np.count_nonzero(np.abs(d) > half_fringe_mm[ok]))
-
-    def coverage(self):
-        return self.n / max(self.n_ref, 1)
-
-    def order_errors(self):
-        return self.orders / max(self.n, 1)
-
-    def rmse(self):
-        return np.sqrt(self.sq / max(self.n, 1))
-
-    def mre(self):
-        return self.rel / max(self.n, 1)
 
 
 SILENT_ERROR_MM = 1.0
@@ -90,7 +64,7 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
         models.append(("FTP (composite)", lambda image: reconstruct_ftp(image, calibration, decoder=decoder).depth_mm))
     models.append(("multi-shot (the label)", None))  # what all the sequence's images measure: the reference
     held_out = set(info.get("held_out_families", []))
-    stats = {}  # (family, model) -> [squared error, output pixels, silent errors, lit pixels, confidence sum, n]
+    errors, sure = {}, {}  # (family, model) -> ErrorTotals against the exact depth; [confidence sum, pixels]
     for f in split_files(data, split)[: limit or None]:
         with np.load(f, allow_pickle=False) as z:
             family = str(z["family"]) if "family" in z else info.get("scene", "?")
@@ -98,24 +72,22 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
         for name, predict in models:
             depth, confidence = (label, None) if predict is None else \
                 predict.infer(image) if hasattr(predict, "infer") else (predict(image), None)
-            ok = np.isfinite(depth) & np.isfinite(truth)
-            d = depth[ok].astype(np.float64) - truth[ok]
-            sure = np.zeros(1) if confidence is None else confidence[np.isfinite(confidence) & np.isfinite(truth)]
-            acc = stats.setdefault((family, name), np.zeros(6))
-            acc += (float(d @ d), d.size, int((np.abs(d) > SILENT_ERROR_MM).sum()), int(np.isfinite(truth).sum()),
-                    float(sure.sum()), sure.size if confidence is not None else 0)
+            errors.setdefault((family, name), ErrorTotals()).add(depth, truth, SILENT_ERROR_MM)
+            if confidence is not None:
+                known = confidence[np.isfinite(confidence) & np.isfinite(truth)]
+                totals = sure.setdefault((family, name), [0.0, 0])
+                totals[0], totals[1] = totals[0] + float(known.sum()), totals[1] + known.size
     names = [n for n, _ in models]
-    families = sorted({f for f, _ in stats}, key=lambda f: (f in held_out, f))
+    families = sorted({f for f, _ in errors}, key=lambda f: (f in held_out, f))
     print(f"{split} split of {data}, by scene family (* held out of training and validation)")
     print(f"{'family':14}" + "".join(f"{n[:30]:>32}" for n in names))
     print(f"{'':14}" + "".join(f"{'RMSE mm  >1mm   cover  conf':>32}" for _ in names))
     for family in families:
         cells = []
         for n in names:
-            sq, out, silent, lit, conf, sure = stats[(family, n)]
-            rmse = f"{np.sqrt(sq / out):8.3f}" if out else f"{'-':>8}"
-            cells.append(f"{rmse} {silent / max(out, 1):6.2%} {out / max(lit, 1):7.1%} "
-                         + (f"{conf / sure:5.2f}" if sure else f"{'-':>5}"))
+            e, (conf, known) = errors[(family, n)], sure.get((family, n), (0.0, 0))
+            rmse = f"{e.rmse:8.3f}" if e.compared else f"{'-':>8}"
+            cells.append(f"{rmse} {e.share_over:6.2%} {e.coverage:7.1%} " + (f"{conf / known:5.2f}" if known else f"{'-':>5}"))
         print(f"{family + (' *' if family in held_out else ''):14}" + "".join(f"{c:>32}" for c in cells))
     print(f"RMSE against the exact depth over the pixels given a depth; >1mm: share of those off by more than "
           f"{SILENT_ERROR_MM:g} mm (silent errors); cover: share of lit pixels given a depth; conf: a phase-aware "
@@ -141,11 +113,10 @@ def main(argv=None):
         model, cfg = model_from_checkpoint(ckpt)
         models.append((cfg.arch.upper(), model, cfg.downsample, ckpt["train_seconds"], f"{ckpt['epoch']}/{cfg.epochs}"))
     columns = [m[0] for m in models] + ["FTP", "multi-shot"]
-    cam = calibration.camera
-    u, v = np.arange(cam.width, dtype=np.float64)[None, :], np.arange(cam.height, dtype=np.float64)[:, None]
+    u, v = pixel_grid(calibration.camera.shape)
     table = {}
     for split in ("train", "val", "test"):
-        errs = {c: (Errors(), Errors()) for c in columns}  # vs label, vs exact depth
+        errs = {c: (ErrorTotals(), ErrorTotals()) for c in columns}  # vs label, vs exact depth
         for f in split_files(args.data, split)[: args.limit or None]:
             image, label, truth = load_sample(f)
             preds = {name: predict_full(model, image, ds) for name, model, ds, *_ in models}
@@ -162,12 +133,12 @@ def main(argv=None):
     print(f"{'training time (CPU)':28}" + "".join(f"{hours.get(c, '-'):>12}" for c in columns))
     print(f"{'best epoch / epochs':28}" + "".join(f"{epochs.get(c, '-'):>12}" for c in columns))
     for split, label in (("train", "Training"), ("val", "Validation"), ("test", "Test")):
-        print(f"{label + ' MRE':28}" + "".join(f"{table[split][c][0].mre():12.2e}" for c in columns))
-        print(f"{label + ' RMSE (mm)':28}" + "".join(f"{table[split][c][0].rmse():12.3f}" for c in columns))
+        print(f"{label + ' MRE':28}" + "".join(f"{table[split][c][0].mre:12.2e}" for c in columns))
+        print(f"{label + ' RMSE (mm)':28}" + "".join(f"{table[split][c][0].rmse:12.3f}" for c in columns))
     exact = table["test"]
-    print(f"{'Test RMSE vs exact (mm)':28}" + "".join(f"{exact[c][1].rmse():12.3f}" for c in columns))
-    print(f"{'Test coverage vs exact':28}" + "".join(f"{exact[c][1].coverage():12.2%}" for c in columns))
-    print(f"{'Test fringe-order errors':28}" + "".join(f"{exact[c][1].order_errors():12.3%}" for c in columns))
+    print(f"{'Test RMSE vs exact (mm)':28}" + "".join(f"{exact[c][1].rmse:12.3f}" for c in columns))
+    print(f"{'Test coverage vs exact':28}" + "".join(f"{exact[c][1].coverage:12.2%}" for c in columns))
+    print(f"{'Test fringe-order errors':28}" + "".join(f"{exact[c][1].share_over:12.3%}" for c in columns))
     print("errors against the multi-shot label (the paper's ground truth) unless marked exact; "
           "the multi-shot column vs its own label is 0 by definition")
 

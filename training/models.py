@@ -68,8 +68,7 @@ class DepthHead(nn.Module):
 class EncoderDecoder(nn.Module):
     """AEN (skips=False) and UNet (skips=True): the same shape, with or without concatenation."""
 
-    def __init__(self, width: int = 16, skips: bool = True, dropout: float = 0.1,
-                 depth_offset: float = 1200.0, depth_scale: float = 50.0):
+    def __init__(self, width: int, skips: bool, dropout: float, depth_offset: float, depth_scale: float):
         super().__init__()
         c = [width * 2 ** i for i in range(6)]  # channels at full, 1/2, ... 1/32 scale
         self.skips = skips
@@ -94,7 +93,7 @@ class EncoderDecoder(nn.Module):
 class FCN(nn.Module):
     """FCN-8s for regression: VGG-style blocks, convolutional fc6/fc7, skip sums, coarse upsampling."""
 
-    def __init__(self, width: int = 16, dropout: float = 0.1, depth_offset: float = 1200.0, depth_scale: float = 50.0):
+    def __init__(self, width: int, dropout: float, depth_offset: float, depth_scale: float):
         super().__init__()
         c = [width * 2 ** min(i, 4) for i in range(5)]
         self.block1 = DoubleConv(3, c[0])
@@ -202,8 +201,10 @@ class CompositeNet(nn.Module):
 ARCHITECTURES = ("fcn", "aen", "unet", "phase", "composite")
 
 
-def build(architecture: str, width: int = 16, dropout: float = 0.1, depth_offset: float = 1200.0,
-          depth_scale: float = 50.0) -> nn.Module:
+def build(architecture: str, width: int, dropout: float, depth_mm: tuple[float, float]) -> nn.Module:
+    """depth_mm: (offset, scale) of the depth-regressing networks' output in millimetres (the training
+    config holds them, so checkpoints do)."""
+    depth_offset, depth_scale = depth_mm
     if architecture == "unet":
         return EncoderDecoder(width, True, dropout, depth_offset, depth_scale)
     if architecture == "aen":

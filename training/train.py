@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import math
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -32,6 +31,7 @@ from tqdm import tqdm
 from fpp_nodes.core.pictures import depth_colours
 
 from fpp_nodes.core.calibration import Calibration
+from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import PhaseOrderDecoder, network_input
 from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.core.simulation import SURFACE_DEPTH_MM
@@ -54,6 +54,8 @@ class TrainConfig:
     lr: float = 1e-3
     weight_decay: float = 1e-4
     dropout: float = 0.1
+    depth_offset_mm: float = 1200.0  # depth-regressing networks: output o -> offset + scale * o, mm
+    depth_scale_mm: float = 50.0
     patience: int = 20
     loss: str = "mse"
     augment: bool = True
@@ -93,7 +95,7 @@ class FringeDepthSet(Dataset):
         self.items = []
         for f in files:
             image, label, truth = load_sample(f)
-            self.items.append((shrink(image, downsample).astype(np.float32) / 255.0,
+            self.items.append((shrink(network_input(image), downsample),  # as cnn_depth: scale, then shrink
                                shrink(label, downsample, True), shrink(truth, downsample, True)))
         self.augment = augment
         self.rng = np.random.default_rng(seed)
@@ -226,13 +228,6 @@ def predict(model, image):
     return model(padded)[..., :h, :w]
 
 
-def errors_mm(pred, reference):
-    """(sum of squared error, sum of relative error, pixel count) over pixels valid in the reference."""
-    ok = torch.isfinite(reference)
-    d = (pred[ok] - reference[ok]).double()
-    return float((d * d).sum()), float((d.abs() / reference[ok].double()).sum()), int(ok.sum())
-
-
 # for the per-epoch numbers only (export chooses the model's threshold): the phase-order network's
 # probability that the order is right; the composite's vote
 VALIDATION_CONFIDENCE = {"phase": 0.99, "composite": 0.8}
@@ -243,7 +238,7 @@ def evaluate_phase(model, loader, device, decoder) -> dict:
     """Loss; RMSE (mm) against the label, coverage of it and the share of pixels off by more than
     1 mm, over the pixels confident at VALIDATION_CONFIDENCE (the phase-order or composite network)."""
     model.eval()
-    losses, sq, n, wrong, n_label = [], 0.0, 0, 0, 0
+    losses, errors = [], ErrorTotals()
     for image, *targets, label in loader:
         pred = predict(model, image.to(device))
         targets = [t.to(device) for t in targets]
@@ -251,28 +246,24 @@ def evaluate_phase(model, loader, device, decoder) -> dict:
                        else phase_order_loss(pred, *targets)).item())
         for out, ref in zip(pred.cpu().numpy(), label[:, 0].numpy()):
             depth, _ = decoder(out, VALIDATION_CONFIDENCE["composite" if isinstance(decoder, CompositeDecoder) else "phase"])
-            ok = np.isfinite(depth) & np.isfinite(ref)
-            d = depth[ok].astype(np.float64) - ref[ok]
-            sq, n, wrong, n_label = sq + float(d @ d), n + d.size, wrong + int((np.abs(d) > 1).sum()), n_label + int(np.isfinite(ref).sum())
-    rmse = math.sqrt(sq / max(n, 1))
-    return {"loss": float(np.mean(losses)), "rmse_mm": rmse, "mre": float("nan"), "coverage": n / max(n_label, 1),
-            "silent_errors": wrong / max(n, 1)}
+            errors.add(depth, ref, bound=1.0)
+    return {"loss": float(np.mean(losses)), "rmse_mm": errors.rmse, "mre": float("nan"), "coverage": errors.coverage,
+            "silent_errors": errors.share_over}
 
 
 @torch.no_grad()
 def evaluate(model, loader, device, loss_kind: str = "mse") -> dict:
     """Loss, RMSE (mm) and MRE against the labels and against the exact depth."""
     model.eval()
-    acc, losses = np.zeros((2, 3)), []
+    to_label, to_truth, losses = ErrorTotals(), ErrorTotals(), []
     for image, label, truth in loader:
         pred = predict(model, image.to(device))
         losses.append(masked_loss(pred, label.to(device), loss_kind).item())
-        pred = pred.cpu()
-        acc[0] += errors_mm(pred, label)
-        acc[1] += errors_mm(pred, truth)
-    return {"loss": float(np.mean(losses)), "rmse_mm": math.sqrt(acc[0, 0] / max(acc[0, 2], 1)),
-            "mre": float(acc[0, 1] / max(acc[0, 2], 1)),
-            "truth_rmse_mm": math.sqrt(acc[1, 0] / max(acc[1, 2], 1)), "truth_mre": float(acc[1, 1] / max(acc[1, 2], 1))}
+        pred = pred.cpu().numpy()
+        to_label.add(pred, label.numpy())
+        to_truth.add(pred, truth.numpy())
+    return {"loss": float(np.mean(losses)), "rmse_mm": to_label.rmse, "mre": to_label.mre,
+            "truth_rmse_mm": to_truth.rmse, "truth_mre": to_truth.mre}
 
 
 def save_checkpoint(path, model, optimizer, scheduler, config: TrainConfig, epoch: int, history: list, seconds: float):
@@ -297,7 +288,7 @@ def load_checkpoint(path) -> dict:
 
 def model_from_checkpoint(ckpt: dict):
     cfg = TrainConfig(**{k: v for k, v in ckpt["config"].items() if k in {f.name for f in fields(TrainConfig)}})
-    model = build(cfg.arch, cfg.width, cfg.dropout)
+    model = build(cfg.arch, cfg.width, cfg.dropout, (cfg.depth_offset_mm, cfg.depth_scale_mm))
     model.load_state_dict(ckpt["model"])
     return model.eval(), cfg
 
@@ -361,7 +352,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     val_loader = DataLoader(val_set, config.batch_size)
     showcase = val_set[0]  # one fixed validation image
 
-    model = build(config.arch, config.width, config.dropout).to(device)
+    model = build(config.arch, config.width, config.dropout, (config.depth_offset_mm, config.depth_scale_mm)).to(device)
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, factor=0.5, patience=config.patience)
     history, start_epoch, seconds = [], 0, 0.0

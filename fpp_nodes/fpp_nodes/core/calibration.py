@@ -35,6 +35,12 @@ class CalibrationError(ValueError):
     """A calibration that cannot be fitted, read or used."""
 
 
+def pixel_grid(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates of an image of shape (height, width): u (1 x W) and v (H x 1), float64,
+    broadcasting to the image."""
+    return np.arange(shape[1], dtype=np.float64)[None, :], np.arange(shape[0], dtype=np.float64)[:, None]
+
+
 def _uv_terms(u, v):
     """The phase-free factors of p, in pairs: p = [t, t phi for t in (1, u, v, u^2, v^2, uv)]."""
     u = np.asarray(u, np.float64)
@@ -144,12 +150,15 @@ class CameraIntrinsics:
         if not (self.fx > 0 and self.fy > 0):
             raise CalibrationError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
 
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(height, width): an image's shape."""
+        return self.height, self.width
+
     def rays(self) -> tuple[np.ndarray, np.ndarray]:
         """x/z and y/z of every pixel's viewing ray (optical frame: x right, y down, z forward)."""
-        u = np.arange(self.width, dtype=np.float64)
-        v = np.arange(self.height, dtype=np.float64)
-        return np.broadcast_to((u - self.cx) / self.fx, (self.height, self.width)), \
-            np.broadcast_to(((v - self.cy) / self.fy)[:, None], (self.height, self.width))
+        u, v = pixel_grid(self.shape)
+        return np.broadcast_to((u - self.cx) / self.fx, self.shape), np.broadcast_to((v - self.cy) / self.fy, self.shape)
 
     def to_dict(self) -> dict:
         return {k: (int(getattr(self, k)) if k in ("width", "height") else float(getattr(self, k)))

@@ -23,34 +23,51 @@ class DepthErrors:
                 "order_errors": self.order_errors, "pixels": self.pixels}
 
 
-def compared_pixels(pred: np.ndarray, truth: np.ndarray, truth_valid: np.ndarray | None = None) -> np.ndarray:
-    mask = np.isfinite(pred) & np.isfinite(truth)
-    return mask if truth_valid is None else mask & truth_valid
+class ErrorTotals:
+    """Errors summed over the pixels valid in both prediction and reference, over one image or a whole
+    data set: RMSE, MRE, coverage of the reference's valid pixels, and how many compared pixels are
+    off by more than a bound (a wrong fringe order; a silent error)."""
 
+    def __init__(self):
+        self.squared = self.relative = 0.0
+        self.compared = self.reference = self.over = 0
 
-def rmse(pred, truth, mask) -> float:
-    """Root mean squared error over mask, in the inputs' units."""
-    diff = (np.asarray(pred, np.float64) - truth)[mask]
-    return float(np.sqrt(np.mean(diff * diff))) if diff.size else float("nan")
+    def add(self, pred, reference, bound=None) -> ErrorTotals:
+        """bound: a scalar or a per-pixel array in the inputs' units."""
+        pred, reference = np.asarray(pred), np.asarray(reference)
+        ok = np.isfinite(pred) & np.isfinite(reference)
+        d = pred[ok].astype(np.float64) - reference[ok]
+        self.squared += float(d @ d)
+        self.relative += float(np.sum(np.abs(d) / np.abs(reference[ok])))
+        self.compared += d.size
+        self.reference += int(np.count_nonzero(np.isfinite(reference)))
+        if bound is not None:
+            self.over += int(np.count_nonzero(np.abs(d) > np.broadcast_to(bound, ok.shape)[ok]))
+        return self
 
+    @property
+    def rmse(self) -> float:
+        return float(np.sqrt(self.squared / self.compared)) if self.compared else float("nan")
 
-def mre(pred, truth, mask) -> float:
-    """Mean relative error |pred - truth| / |truth| over mask."""
-    t = np.asarray(truth, np.float64)[mask]
-    return float(np.mean(np.abs(np.asarray(pred, np.float64)[mask] - t) / np.abs(t))) if t.size else float("nan")
+    @property
+    def mre(self) -> float:
+        return self.relative / self.compared if self.compared else float("nan")
+
+    @property
+    def coverage(self) -> float:
+        return self.compared / max(self.reference, 1)
+
+    @property
+    def share_over(self) -> float:
+        return self.over / max(self.compared, 1)
 
 
 def depth_errors(pred, truth, truth_valid=None, fringe_depth_mm: np.ndarray | float | None = None) -> DepthErrors:
-    """All metrics at once. fringe_depth_mm is the depth one fringe period of the highest frequency
+    """One image's errors. fringe_depth_mm is the depth one fringe period of the highest frequency
     spans (per pixel or scalar); an error over half of it is a wrong fringe order."""
-    mask = compared_pixels(pred, truth, truth_valid)
-    reference = np.isfinite(truth) if truth_valid is None else truth_valid & np.isfinite(truth)
-    orders = 0
-    if fringe_depth_mm is not None:
-        half = 0.5 * np.broadcast_to(fringe_depth_mm, mask.shape)
-        orders = int(np.count_nonzero(np.abs(np.where(mask, pred - truth, 0.0)) > half))
-    return DepthErrors(rmse(pred, truth, mask), mre(pred, truth, mask),
-                       float(mask.sum() / max(reference.sum(), 1)), orders, int(mask.sum()))
+    reference = truth if truth_valid is None else np.where(truth_valid, truth, np.nan)
+    t = ErrorTotals().add(pred, reference, None if fringe_depth_mm is None else 0.5 * np.asarray(fringe_depth_mm))
+    return DepthErrors(t.rmse, t.mre, t.coverage, t.over, t.compared)
 
 
 def noise_limited_depth_std(modulation, depth_per_radian, steps: int, noise_sigma: float) -> np.ndarray:

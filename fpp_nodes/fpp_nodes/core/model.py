@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import yaml
 
-from .calibration import Calibration
+from .calibration import Calibration, pixel_grid
 from .patterns import PatternError, PatternSet
 from .reconstruct import CompositeDecoder, QualityLimits, depth_terms, drop_flying_pixels, full_scale
 
@@ -152,10 +152,9 @@ class PhaseOrderDecoder:
 
     def __init__(self, calibration: Calibration):
         cam = calibration.camera
-        u = np.arange(cam.width, dtype=np.float64)[None, :]
-        v = np.arange(cam.height, dtype=np.float64)[:, None]
+        u, v = pixel_grid(cam.shape)
         self.reference = np.broadcast_to(calibration.model.phase_at_depth(calibration.reference_depth_mm, u, v),
-                                         (cam.height, cam.width)).astype(np.float32)
+                                         cam.shape).astype(np.float32)
         self.terms = depth_terms(calibration)
 
     def __call__(self, out: np.ndarray, min_confidence: float,

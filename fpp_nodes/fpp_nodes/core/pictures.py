@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from .calibration import CameraIntrinsics, back_project
-from .metrics import compared_pixels, rmse
+from .metrics import depth_errors
 
 INVALID_BGR = (96, 96, 96)
 PAPER, INK = (255, 255, 255), (0, 0, 0)
@@ -133,13 +133,13 @@ def error_picture(pred_mm: np.ndarray, truth_mm: np.ndarray, limit_mm: float | N
                   title: str | None = None) -> np.ndarray:
     """pred - truth in a blue-white-red map over [-limit, +limit] (default: the 99th percentile of
     |error|), scale bar in mm, and a title with the RMSE over the pixels valid in both."""
-    mask = compared_pixels(pred_mm, truth_mm)
+    mask = np.isfinite(pred_mm) & np.isfinite(truth_mm)
     error = np.where(mask, np.asarray(pred_mm, np.float64) - truth_mm, np.nan)
     if limit_mm is None:
         limit_mm = float(np.percentile(np.abs(error[mask]), 99)) if mask.any() else 1.0
     limit_mm = max(limit_mm, 1e-3)
     picture = _with_scale_bar(_colour(error, -limit_mm, limit_mm, DIVERGING), -limit_mm, limit_mm, DIVERGING, "mm")
-    value = rmse(pred_mm, truth_mm, mask)
+    value = depth_errors(pred_mm, truth_mm).rmse_mm
     summary = f"RMSE {value:.3g} mm over {int(mask.sum())} px" if mask.any() else "no pixel valid in both"
     return _titled(picture, f"{title}: {summary}" if title else f"error, {summary}")
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .calibration import Calibration, back_project
+from .calibration import Calibration, back_project, pixel_grid
 from .patterns import CODE_ORDERS, PatternSet
 from .phase import (TWO_PI, PhaseError, ftp_code_phase, ftp_wrapped_phase, phase_and_modulation, phase_noise,
                     unwrap_spatial, unwrap_temporal, wrapped_phase)
@@ -118,9 +118,8 @@ def depth_terms(calibration: Calibration) -> list[np.ndarray]:
     """The rational model's per-pixel terms (ca, cb, da, db), float32 at the camera's size, so that
     depth = (ca + cb phi) / (da + db phi): computed once per calibration, not per image."""
     cam = calibration.camera
-    u = np.arange(cam.width, dtype=np.float64)[None, :]
-    v = np.arange(cam.height, dtype=np.float64)[:, None]
-    return [np.ascontiguousarray(np.broadcast_to(t, (cam.height, cam.width)), np.float32)
+    u, v = pixel_grid(cam.shape)
+    return [np.ascontiguousarray(np.broadcast_to(t, cam.shape), np.float32)
             for t in calibration.model.linear_in_phase(u, v)]
 
 
@@ -227,9 +226,8 @@ class CompositeDecoder:
         if calibration.code_model is None:
             raise PhaseError("the composite decoder needs a calibration made with the composite pattern (a code model)")
         cam = calibration.camera
-        u = np.arange(cam.width, dtype=np.float64)[None, :]
-        v = np.arange(cam.height, dtype=np.float64)[:, None]
-        ends = [np.broadcast_to(calibration.model.phase_at_depth(z, u, v), (cam.height, cam.width)) for z in depth_range_mm]
+        u, v = pixel_grid(cam.shape)
+        ends = [np.broadcast_to(calibration.model.phase_at_depth(z, u, v), cam.shape) for z in depth_range_mm]
         span = np.abs(ends[1] - ends[0]) / TWO_PI
         if span.max() > CODE_ORDERS - 1:
             raise PhaseError(f"the working range {depth_range_mm[0]:g}-{depth_range_mm[1]:g} mm spans up to {span.max():.1f} "
@@ -326,8 +324,7 @@ def composite_ftp_phases(image: np.ndarray, calibration: Calibration):
     """(carrier phase, code phase, carrier lobe amplitude) of a composite image by FTP, each lobe where
     the calibration puts it at the reference depth (the median phase slope, in cycles per image)."""
     cal = calibration
-    u = np.arange(cal.camera.width, dtype=np.float64)[None, :]
-    v = np.arange(cal.camera.height, dtype=np.float64)[:, None]
+    u, v = pixel_grid(cal.camera.shape)
     carrier = cal.model.phase_at_depth(cal.reference_depth_mm, u, v) * np.ones(image.shape)
     code = carrier / CODE_ORDERS + cal.code_row_phase_at_depth(cal.reference_depth_mm, u, v)
     h, w = image.shape
@@ -350,10 +347,9 @@ def reconstruct_ftp(image: np.ndarray, calibration: Calibration, limits: Quality
     """
     cal = calibration
     image = np.asarray(image)
-    if image.shape != (cal.camera.height, cal.camera.width):
+    if image.shape != cal.camera.shape:
         raise PhaseError(f"expected one {cal.camera.width}x{cal.camera.height} image, got shape {image.shape}")
-    u = np.arange(cal.camera.width, dtype=np.float64)[None, :]
-    v = np.arange(cal.camera.height, dtype=np.float64)[:, None]
+    u, v = pixel_grid(cal.camera.shape)
     if cal.code_model is not None:
         if decoder is None:
             raise PhaseError("the composite's FTP needs a CompositeDecoder for the working range its code spans")

@@ -1,13 +1,14 @@
 """Assembling camera frames into complete phase-shift sequences (no ROS here).
 
-A frame is identified by the pattern the projector showed when it was taken: its index in the
-pattern set. A sequence is the frames of indices 0 .. K-1, in order, with increasing stamps. A
+A frame is identified by the pattern the projector showed when it was taken (ShownPatterns): its
+index in the pattern set. A sequence is the frames of indices 0 .. K-1, in order, with increasing stamps. A
 missing, duplicated or out-of-order frame, a frame of another size or type, or time running
 backwards (a camera that restarted) ends the sequence in progress: it is dropped, counted and the
 reason returned, never mixed into the next one.
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,9 +16,31 @@ import numpy as np
 from .patterns import PatternSet, pattern_images
 
 
-def index_by_line(patterns: PatternSet) -> dict[bytes, int]:
-    """Which pattern a projector shows, from the bytes of the image it published (patterns.pattern_images)."""
-    return {image.tobytes(): i for i, image in enumerate(pattern_images(patterns))}
+class ShownPatterns:
+    """What the projector showed when, from the pattern images it published, and so which pattern a
+    camera frame saw: the one shown closest to the frame's stamp, within max_offset_ns. The node and
+    the bag reader both match frames this way."""
+
+    def __init__(self, patterns: PatternSet, max_offset_ns: int):
+        self.index_of_bytes = {image.tobytes(): i for i, image in enumerate(pattern_images(patterns))}
+        self.max_offset_ns = max_offset_ns
+        self.events: deque[tuple[int, int]] = deque(maxlen=4 * patterns.count)  # (stamp ns, pattern index)
+
+    def add(self, stamp_ns: int, pattern_image: np.ndarray) -> int | None:
+        """Note a shown pattern; its index, or None for an image not in the pattern set (not noted)."""
+        index = self.index_of_bytes.get(pattern_image.tobytes())
+        if index is not None:
+            self.events.append((stamp_ns, index))
+        return index
+
+    def match(self, frame_stamp_ns: int) -> int | None:
+        """The index of the pattern a frame stamped frame_stamp_ns saw, or None if none was shown near it."""
+        best = min(self.events, key=lambda e: abs(e[0] - frame_stamp_ns), default=None)
+        return best[1] if best is not None and abs(best[0] - frame_stamp_ns) <= self.max_offset_ns else None
+
+    def none_will_match(self, frame_stamp_ns: int) -> bool:
+        """True when a pattern was shown after the frame's window closed, so no later event can match it."""
+        return bool(self.events) and self.events[-1][0] > frame_stamp_ns + self.max_offset_ns
 
 
 @dataclass

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .calibration import Calibration, CalibrationError, CameraIntrinsics, fit_rational_model
+from .calibration import Calibration, CalibrationError, CameraIntrinsics, fit_rational_model, pixel_grid
 from .metrics import DepthErrors, depth_errors, noise_limited_depth_std
 from .patterns import CODE_ORDERS, PatternSet
 from .phase import TWO_PI, ftp_code_phase, unwrap_spatial
@@ -39,7 +39,7 @@ def calibrate_from_planes(stacks, depths_mm, camera: CameraIntrinsics, patterns:
     samples, rows, code_samples = [], [], []
     for images, z in zip(stacks, depths_mm):
         images = np.asarray(images)
-        if images.shape[1:] != (camera.height, camera.width):
+        if images.shape[1:] != camera.shape:
             raise CalibrationError(f"plane at {z} mm: images are {images.shape[2]}x{images.shape[1]}, "
                                    f"the camera is {camera.width}x{camera.height}")
         phase, valid, _, noise = multi_frequency_phase(images, patterns, limits)
@@ -107,8 +107,7 @@ class SceneResult:
 
 def fringe_depth_mm(calibration: Calibration, phase: np.ndarray) -> np.ndarray:
     """Depth spanned by one fringe period of the highest frequency at every pixel."""
-    u = np.arange(phase.shape[1], dtype=np.float64)[None, :]
-    v = np.arange(phase.shape[0], dtype=np.float64)[:, None]
+    u, v = pixel_grid(phase.shape)
     return np.abs(calibration.model.depth_per_radian(phase, u, v)) * 2.0 * np.pi
 
 
@@ -118,8 +117,7 @@ def score(rec: Reconstruction, truth_depth, truth_valid, calibration: Calibratio
     reconstruction with this modulation (metrics.noise_limited_depth_std, with the camera's rounding
     adding 1/12 count^2 of variance to noise_sigma^2)."""
     errors = depth_errors(rec.depth_mm, truth_depth, truth_valid, fringe_depth_mm(calibration, rec.phase))
-    u = np.arange(rec.phase.shape[1], dtype=np.float64)[None, :]
-    v = np.arange(rec.phase.shape[0], dtype=np.float64)[:, None]
+    u, v = pixel_grid(rec.phase.shape)
     mask = np.isfinite(rec.depth_mm) & truth_valid & (rec.modulation > 0)
     std = noise_limited_depth_std(rec.modulation[mask], calibration.model.depth_per_radian(rec.phase, u, v)[mask],
                                   calibration.patterns.steps, np.sqrt(noise_sigma ** 2 + 1.0 / 12.0))

@@ -19,8 +19,8 @@ from sensor_msgs.msg import Image
 
 from fpp_msgs_py import ImageError, Qos, Topics, header_at, image_to_numpy, numpy_to_image, stamp_ns
 
-from ..core.sequence import SequenceAssembler, index_by_line
-from .common import declare, describe, follow_calibration, load_calibration, on_set, positive, run
+from ..core.sequence import SequenceAssembler, ShownPatterns
+from .common import check_positive, declare, describe, follow_calibration, load_calibration, on_set, run
 from .health import Health
 
 
@@ -28,31 +28,34 @@ class CaptureSequence(Node):
     def __init__(self, **kwargs):
         super().__init__("capture_sequence", **kwargs)
         self.health = Health(self)
-        self._use(*load_calibration(self))
-        follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
         self.max_offset_ns = int(declare(self, "max_time_offset", 0.005,
                                          "largest |camera stamp - pattern stamp| of a match, seconds") * 1e9)
-        on_set(self, {"max_time_offset": positive})
+        check_positive("max_time_offset", self.max_offset_ns)
+        on_set(self, {"max_time_offset": check_positive})
         self.add_post_set_parameters_callback(
-            lambda ps: [setattr(self, "max_offset_ns", int(p.value * 1e9)) for p in ps if p.name == "max_time_offset"])
+            lambda ps: [self._set_max_offset(int(p.value * 1e9)) for p in ps if p.name == "max_time_offset"])
+        self._use(*load_calibration(self))
+        follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
         self.unmatched = 0
         self.publisher = self.create_publisher(Image, Topics.SEQUENCE, Qos.LARGE)
         self.single_publisher = self.create_publisher(Image, Topics.SINGLE, Qos.LARGE)
         self.create_subscription(Image, Topics.PATTERN, self._on_pattern, Qos.FRAMES)
         self.create_subscription(Image, Topics.CAMERA_IMAGE, self._on_frame, Qos.FRAMES)
 
+    def _set_max_offset(self, ns: int):
+        self.max_offset_ns = self.shown.max_offset_ns = ns
+
     def _use(self, calibration, source):
         patterns = calibration.patterns
         self.calibration = calibration
         self.health.facts["calibration"] = describe(calibration, source)
-        self.index_of_line = index_by_line(patterns)
+        self.shown = ShownPatterns(patterns, self.max_offset_ns)
         self.assembler = SequenceAssembler(patterns.count)
-        self.shown: deque[tuple[int, int]] = deque(maxlen=4 * patterns.count)  # (stamp ns, pattern index)
         self.waiting: deque[Image] = deque(maxlen=2 * patterns.count)  # frames that came before their pattern event
 
     def _on_pattern(self, msg: Image):
         try:
-            index = self.index_of_line.get(image_to_numpy(msg).tobytes())
+            index = self.shown.add(stamp_ns(msg.header.stamp), image_to_numpy(msg))
         except ImageError as e:
             self.health.report("patterns rejected", f"pattern ignored: {e}")
             return
@@ -60,13 +63,7 @@ class CaptureSequence(Node):
             self.health.report("patterns rejected", "the projector shows a pattern that is not in the calibration's "
                                                     "pattern set")
             return
-        self.shown.append((stamp_ns(msg.header.stamp), index))
         self._drain()
-
-    def _match(self, frame: Image) -> int | None:
-        t = stamp_ns(frame.header.stamp)
-        best = min(self.shown, key=lambda e: abs(e[0] - t), default=None)
-        return best[1] if best is not None and abs(best[0] - t) <= self.max_offset_ns else None
 
     def _on_frame(self, msg: Image):
         self.health.count("frames in")
@@ -80,9 +77,9 @@ class CaptureSequence(Node):
         (the two topics are delivered independently) or a later event shows none will."""
         while self.waiting:
             head = self.waiting[0]
-            index = self._match(head)
+            index = self.shown.match(stamp_ns(head.header.stamp))
             if index is None:
-                if not self.shown or self.shown[-1][0] <= stamp_ns(head.header.stamp) + self.max_offset_ns:
+                if not self.shown.none_will_match(stamp_ns(head.header.stamp)):
                     return
                 self._unmatched(self.waiting.popleft())
                 continue
@@ -129,7 +126,7 @@ class CaptureSequence(Node):
 
 def check_frame(image: np.ndarray, camera) -> None:
     """A camera frame the multi-shot path can use: the calibration's size, finite if float."""
-    if image.shape != (camera.height, camera.width):
+    if image.shape != camera.shape:
         raise ImageError(f"frame is {image.shape[1]}x{image.shape[0]}, the calibration's camera is "
                          f"{camera.width}x{camera.height}")
     if image.dtype.kind == "f" and not np.isfinite(image).all():

@@ -19,10 +19,6 @@ MESSAGE_TYPES = {"sensor_msgs/msg/Image": Image, "sensor_msgs/msg/CameraInfo": C
                  "sensor_msgs/msg/PointCloud2": PointCloud2}
 
 
-class ConfigError(ValueError):
-    """A parameter value a node cannot start or go on with."""
-
-
 def declare(node: Node, name: str, default, description: str, read_only: bool = False):
     """Declare a parameter with its description and return its value."""
     node.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=read_only))
@@ -61,19 +57,21 @@ def follow_calibration(node: Node, current, use) -> None:
 
 
 def on_set(node: Node, checks: dict):
-    """Validate runtime parameter changes: checks maps a name to a function returning an error or None."""
+    """Validate runtime parameter changes: checks maps a name to check(name, value), which raises
+    ValueError for a value the node cannot use; the change is then refused with that message."""
     def callback(params):
         for p in params:
-            check = checks.get(p.name)
-            reason = check(p.value) if check else None
-            if reason:
-                return SetParametersResult(successful=False, reason=f"{p.name}: {reason}")
+            try:
+                checks.get(p.name, lambda name, value: None)(p.name, p.value)
+            except ValueError as e:
+                return SetParametersResult(successful=False, reason=str(e))
         return SetParametersResult(successful=True)
     node.add_on_set_parameters_callback(callback)
 
 
-def positive(value) -> str | None:
-    return None if isinstance(value, (int, float)) and value > 0 else f"must be > 0, got {value!r}"
+def check_positive(name: str, value) -> None:
+    if not (isinstance(value, (int, float)) and value > 0):
+        raise ValueError(f"{name} must be > 0, got {value!r}")
 
 
 def spin(nodes: list[Node]) -> None:

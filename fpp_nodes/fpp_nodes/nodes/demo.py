@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -25,8 +23,9 @@ from fpp_msgs_py import Qos, Topics, cloud_to_xyz, image_to_numpy, stamp_ns
 
 from ..core import io, pictures
 from ..core.calibration import Calibration, default_calibration_path
+from ..processes import start_process, stop_process
 
-class Robot(Node):
+class DemoRobot(Node):
     """Subscribes to everything a robot and its operator look at, noting when each message arrives."""
 
     def __init__(self):
@@ -50,11 +49,10 @@ def main(argv=None):
     args = parser.parse_args(rclpy.utilities.remove_ros_args(argv if argv is not None else sys.argv)[1:])
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    sensor = subprocess.Popen([sys.executable, "-m", "fpp_nodes.nodes.sensor", "--ros-args",
-                               "-p", f"scene:={args.scene}", "-p", f"seed:={args.seed}"],
-                              start_new_session=True)
+    sensor = start_process([sys.executable, "-m", "fpp_nodes.nodes.sensor", "--ros-args",
+                            "-p", f"scene:={args.scene}", "-p", f"seed:={args.seed}"], dict(os.environ), None, None)
     rclpy.init()
-    robot = Robot()
+    robot = DemoRobot()
     try:
         end = time.monotonic() + args.timeout
         while len(robot.clouds) < args.clouds and time.monotonic() < end and sensor.poll() is None:
@@ -69,12 +67,10 @@ def main(argv=None):
     finally:
         robot.destroy_node()
         rclpy.try_shutdown()
-        if sensor.poll() is None:
-            os.killpg(sensor.pid, signal.SIGINT)
-            sensor.wait(timeout=10)
+        stop_process(sensor)
 
 
-def per_cloud(robot: Robot, frames_per_sequence: int | None = None) -> list[dict]:
+def per_cloud(robot: DemoRobot, frames_per_sequence: int | None = None) -> list[dict]:
     """Latency of each stage (ms) and accuracy of every cloud received, from the stamps (when each
     pattern was shown) and the arrival times here; a sequence has the shipped calibration's frames
     unless told otherwise."""
@@ -119,7 +115,7 @@ def write_pictures(out: Path, clouds: list, truth_m: np.ndarray, prefix: str, la
     return first
 
 
-def report(robot: Robot, out: Path) -> None:
+def report(robot: DemoRobot, out: Path) -> None:
     rows = per_cloud(robot)
     for i, (cloud, _) in enumerate(robot.clouds):
         io.write_ply(out / f"cloud_{i:02d}.ply", cloud_to_xyz(cloud))

@@ -58,8 +58,8 @@ class Health:
         if share < FEW_USABLE:
             self.report(key, f"only {share:.2%} of pixels show usable fringes (dark, saturated or out of focus?)")
 
-    def status(self) -> DiagnosticStatus:
-        now = time.monotonic()
+    def status(self, now: float) -> DiagnosticStatus:
+        """The report over the window from the previous one until now (changes nothing)."""
         elapsed = max(now - self.since, 1e-9)
         values = {key: str(n) for key, n in sorted(self.totals.items())}
         values.update({f"{key} rate (Hz)": f"{self.window[key] / elapsed:.2f}" for key in sorted(self.totals)})
@@ -69,13 +69,15 @@ class Health:
         values.update(self.facts)
         problems = list(self.problems.values())[-3:]
         level, message = (DiagnosticStatus.WARN, "; ".join(problems)) if problems else (DiagnosticStatus.OK, "ok")
-        self.window.clear()
-        self.problems.clear()
-        self.since = now
         return DiagnosticStatus(level=level, name=self.node.get_fully_qualified_name(), message=message,
                                 hardware_id=HARDWARE_ID, values=[KeyValue(key=k, value=v) for k, v in values.items()])
 
     def publish(self) -> None:
-        msg = DiagnosticArray(status=[self.status()])
+        """Publish the report and start the next window."""
+        now = time.monotonic()
+        msg = DiagnosticArray(status=[self.status(now)])
         msg.header.stamp = self.node.get_clock().now().to_msg()
         self.publisher.publish(msg)
+        self.window.clear()
+        self.problems.clear()
+        self.since = now

@@ -16,7 +16,7 @@ from std_srvs.srv import Trigger
 from fpp_msgs_py import Frames, Qos, Topics, numpy_to_image
 
 from ..core.patterns import SINGLE_SHOT_KINDS, PatternSet, pattern_images
-from .common import declare, on_set, positive, run
+from .common import check_positive, declare, on_set, run
 from .health import Health
 
 
@@ -35,10 +35,9 @@ class PatternProjector(Node):
             single_shot=declare(self, "single_shot", "composite", f"single-shot frame: {' or '.join(SINGLE_SHOT_KINDS)} "
                                 "(composite: one more frame; paper: the first step of the highest frequency)", True))
         self.rate = declare(self, "rate", 30.0, "patterns per second")
-        if positive(self.rate):
-            raise ValueError(f"rate {positive(self.rate)}")
+        check_positive("rate", self.rate)
         self.continuous = declare(self, "continuous", True, "show sequences over and over; false: one per ~/capture call")
-        on_set(self, {"rate": positive})
+        on_set(self, {"rate": check_positive})
         self.add_post_set_parameters_callback(self._after_set)
         self.lines = pattern_images(self.patterns)
         self.publisher = self.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)

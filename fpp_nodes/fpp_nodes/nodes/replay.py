@@ -21,7 +21,7 @@ from std_msgs.msg import String
 from fpp_msgs_py import Qos, Topics
 
 from ..bag import BagError, read_bag
-from .common import MESSAGE_TYPES, declare, positive
+from .common import MESSAGE_TYPES, check_positive, declare
 
 
 class Replay(Node):
@@ -31,8 +31,7 @@ class Replay(Node):
         self.rate = declare(self, "rate", 1.0, "playback speed factor", True)
         self.loop = declare(self, "loop", False, "play over and over", True)
         self.start_delay = declare(self, "start_delay", 10.0, "longest wait for every topic to have a subscriber, s", True)
-        if positive(self.rate):
-            raise ValueError(f"rate {positive(self.rate)}")
+        check_positive("rate", self.rate)
         if not path:
             raise ValueError("parameter 'bag' is required")
         self.recording = read_bag(path)  # BagError before any publisher exists
