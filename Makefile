@@ -34,7 +34,10 @@ demo: setup
 offline-demo: setup
 	$(VENV)/bin/fpp demo --out out/offline-demo
 
+# the linter and formatter first (ruff.toml): a style slip fails in a second, not after the suite
 test: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 	$(PY) -m pytest -q tests
 
 # OpenCV contrib (structured_light) cannot share an environment with opencv-python-headless.

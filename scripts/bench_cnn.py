@@ -4,10 +4,11 @@ on the same model in the same run (the node's overhead is the difference).
     source scripts/env.bash && python scripts/bench_cnn.py [--model PATH] [--seconds 20]
 
 Rows: the bare session on the network's input (1 x 1 x 256 x 320 for the default, half resolution);
-DepthModel (what the node calls: scale, shrink, pad, run, grow back, mask untrusted pixels); the node in its own process, fed
-by this script as fast as it takes frames (it keeps only the newest), timed from each frame's stamp to
-its depth image arriving here.
+DepthModel (what the node calls: scale, shrink, pad, run, grow back, mask untrusted pixels); the
+node in its own process, fed by this script as fast as it takes frames (it keeps only the newest),
+timed from each frame's stamp to its depth image arriving here.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -23,8 +24,10 @@ from std_msgs.msg import Header
 
 from fpp_msgs_py import Qos, Topics, numpy_to_image, stamp_ns
 from fpp_nodes.core.model import DepthModel, default_model_path
-from fpp_nodes.core.simulation import Rig, make_scene, render
+from fpp_nodes.core.scenes import make_scene
+from fpp_nodes.core.simulation import Rig, render
 from fpp_nodes.processes import start_process, stop_process
+
 from machine import describe
 
 
@@ -47,7 +50,9 @@ def main():
     args = parser.parse_args()
     rig = Rig()
     patterns = rig.pattern_set()
-    image = render(rig, make_scene(rig, "sculpture", 5), patterns, np.random.default_rng(5)).images[patterns.single_shot_index]
+    image = render(rig, make_scene(rig, "sculpture", 5), patterns, np.random.default_rng(5)).images[
+        patterns.single_shot_index
+    ]
     model = DepthModel(args.model, threads=args.threads)
     h, w = 480 // model.downsample, 640 // model.downsample
     x = np.zeros((1, 1, h + (-h) % 32, w + (-w) % 32), np.float32)
@@ -55,13 +60,28 @@ def main():
     full = timed(lambda: model(image), 50)
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(args.domain))
-    node_proc = start_process(["ros2", "run", "fpp_nodes", "cnn_depth", "--ros-args", "-p", f"model:={args.model}",
-                               "-p", f"threads:={args.threads}"], env, None, None)
+    node_proc = start_process(
+        [
+            "ros2",
+            "run",
+            "fpp_nodes",
+            "cnn_depth",
+            "--ros-args",
+            "-p",
+            f"model:={args.model}",
+            "-p",
+            f"threads:={args.threads}",
+        ],
+        env,
+        None,
+        None,
+    )
     rclpy.init(domain_id=args.domain)
     robot = Node("bench_cnn")
     arrivals = []
-    robot.create_subscription(Image, Topics.DEPTH, lambda m: arrivals.append(
-        (time.time_ns() - stamp_ns(m.header.stamp)) / 1e6), Qos.LARGE)
+    robot.create_subscription(
+        Image, Topics.DEPTH, lambda m: arrivals.append((time.time_ns() - stamp_ns(m.header.stamp)) / 1e6), Qos.LARGE
+    )
     pub = robot.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
     try:
         while pub.get_subscription_count() == 0 or robot.count_subscribers(Topics.CAMERA_IMAGE) == 0:
@@ -82,19 +102,37 @@ def main():
         robot.destroy_node()
         rclpy.try_shutdown()
     lat = np.array(arrivals)
-    print("\n" + describe({"onnxruntime intra-op (session and node)": args.threads,
-                            "cv2 (DepthModel and node, default)": cv2.getNumThreads()}))
-    print(f"model {args.model} ({model.card.get('architecture')}, width {model.card.get('width')}, "
-          f"{model.card.get('parameters')} parameters), 640x480 mono8 frames\n")
+    print(
+        "\n"
+        + describe(
+            {
+                "onnxruntime intra-op (session and node)": args.threads,
+                "cv2 (DepthModel and node, default)": cv2.getNumThreads(),
+            }
+        )
+    )
+    print(
+        f"model {args.model} ({model.card.get('architecture')}, width {model.card.get('width')}, "
+        f"{model.card.get('parameters')} parameters), 640x480 mono8 frames\n"
+    )
     print(f"{'':44} {'ms p50':>7} {'ms p95':>7} {'frames/s':>9}")
-    print(f"{'bare onnxruntime session (' + 'x'.join(map(str, x.shape[2:][::-1])) + ')':44} "
-          f"{np.median(bare):7.1f} {np.percentile(bare, 95):7.1f} {1000 / np.median(bare):9.1f}")
-    print(f"{'DepthModel (+ decode, mask untrusted)':44} {np.median(full):7.1f} {np.percentile(full, 95):7.1f} "
-          f"{1000 / np.median(full):9.1f}")
-    print(f"{'cnn_depth node, stamp to depth here':44} {np.median(lat):7.1f} {np.percentile(lat, 95):7.1f} "
-          f"{len(lat) / elapsed:9.1f}")
-    print(f"\nframes sent {sent} ({sent / elapsed:.0f}/s), depth images back {len(lat)}; the node keeps the newest "
-          f"frame, so the rest were dropped, not queued. Node latency / bare session: {np.median(lat) / np.median(bare):.1f}x")
+    print(
+        f"{'bare onnxruntime session (' + 'x'.join(map(str, x.shape[2:][::-1])) + ')':44} "
+        f"{np.median(bare):7.1f} {np.percentile(bare, 95):7.1f} {1000 / np.median(bare):9.1f}"
+    )
+    print(
+        f"{'DepthModel (+ decode, mask untrusted)':44} {np.median(full):7.1f} {np.percentile(full, 95):7.1f} "
+        f"{1000 / np.median(full):9.1f}"
+    )
+    print(
+        f"{'cnn_depth node, stamp to depth here':44} {np.median(lat):7.1f} {np.percentile(lat, 95):7.1f} "
+        f"{len(lat) / elapsed:9.1f}"
+    )
+    print(
+        f"\nframes sent {sent} ({sent / elapsed:.0f}/s), depth images back {len(lat)}; the node keeps the newest "
+        f"frame, so the rest were dropped, not queued. "
+        f"Node latency / bare session: {np.median(lat) / np.median(bare):.1f}x"
+    )
 
 
 if __name__ == "__main__":

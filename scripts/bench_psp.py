@@ -19,6 +19,7 @@ threads) beside OpenCV's per scene. To see a CPU without AVX-512 on one that has
 NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" OPENCV_CPU_DISABLE=AVX512-SKX (the header then
 says so).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,8 +35,10 @@ from fpp_nodes.core.calibration import back_project, pixel_grid  # noqa: E402
 from fpp_nodes.core.metrics import depth_errors  # noqa: E402
 from fpp_nodes.core.phase import phase_and_modulation, phase_noise, unwrap_temporal, wrapped_phase  # noqa: E402
 from fpp_nodes.core.reconstruct import PspReconstructor, multi_frequency_phase, trusted_depth, unsaturated  # noqa: E402
-from fpp_nodes.core.simulation import Rig, make_scene, render  # noqa: E402
+from fpp_nodes.core.scenes import make_scene  # noqa: E402
+from fpp_nodes.core.simulation import Rig, render  # noqa: E402
 from fpp_nodes.core.workflow import fringe_depth_mm, simulated_calibration  # noqa: E402
+
 from machine import describe  # noqa: E402  (scripts/, this script's folder)
 
 
@@ -53,18 +56,26 @@ def stage_table(psp: PspReconstructor, images: np.ndarray, repeat: int) -> None:
     """The multi-shot path's stages, each timed alone on the whole image in one thread."""
     patterns, limits = psp.calibration.patterns, psp.limits
     n = patterns.steps
-    frames = [images[i * n:(i + 1) * n] for i in range(len(patterns.frequencies))]
+    frames = [images[i * n : (i + 1) * n] for i in range(len(patterns.frequencies))]
     phase, valid, modulation, noise = multi_frequency_phase(images, patterns, limits)
     wrapped = [wrapped_phase(f) for f in frames[:-1]] + [phase_and_modulation(frames[-1])[0]]
     depth, _ = psp.depth(phase, noise)
-    stages = [(f"phase, {f} fringe{'s' * (f > 1)}", lambda fr=fr: wrapped_phase(fr)) for f, fr in zip(patterns.frequencies, frames[:-1])]
-    stages += [(f"phase + modulation, {patterns.frequencies[-1]} fringes", lambda: phase_and_modulation(frames[-1])),
-               ("unwrapping (temporal)", lambda: unwrap_temporal(wrapped, patterns.frequencies, limits.max_order_residual)),
-               ("checks: saturation", lambda: unsaturated(frames[-1])),
-               ("checks: phase noise (N-step residual)", lambda: phase_noise(frames[-1], modulation)),
-               ("depth + depth noise (rational model)", lambda: psp.depth(phase, noise)),
-               ("trust: shadow edges, flying pixels", lambda: trusted_depth(depth.copy(), valid.copy(), limits.max_depth_step_mm)),
-               ("XYZ (back-projection)", lambda: back_project(depth, psp.calibration.camera))]
+    stages = [
+        (f"phase, {f} fringe{'s' * (f > 1)}", lambda fr=fr: wrapped_phase(fr))
+        for f, fr in zip(patterns.frequencies, frames[:-1])
+    ]
+    stages += [
+        (f"phase + modulation, {patterns.frequencies[-1]} fringes", lambda: phase_and_modulation(frames[-1])),
+        ("unwrapping (temporal)", lambda: unwrap_temporal(wrapped, patterns.frequencies, limits.max_order_residual)),
+        ("checks: saturation", lambda: unsaturated(frames[-1])),
+        ("checks: phase noise (N-step residual)", lambda: phase_noise(frames[-1], modulation)),
+        ("depth + depth noise (rational model)", lambda: psp.depth(phase, noise)),
+        (
+            "trust: shadow edges, flying pixels",
+            lambda: trusted_depth(depth.copy(), valid.copy(), limits.max_depth_step_mm),
+        ),
+        ("XYZ (back-projection)", lambda: back_project(depth, psp.calibration.camera)),
+    ]
     one_thread = PspReconstructor(psp.calibration, limits, threads=1)
     print(f"{'stage':40} {'ms median':>9}")
     total = 0.0
@@ -103,12 +114,21 @@ def main():
     sinus = opencv_psp(rig, patterns.frequencies[-1]) if with_opencv else None
     u, v = pixel_grid((rig.height, rig.width))
     print(describe({"cv2": cv2.getNumThreads(), "ours (row bands)": len(ours._bands)}, libs=("numpy", "cv2")))
-    print(f"640x480; median of {args.repeat} runs" + ("" if with_opencv else "; this cv2 has no structured_light: "
-                                                      "ours alone (make bench compares with OpenCV)") + "\n")
+    print(
+        f"640x480; median of {args.repeat} runs"
+        + ("" if with_opencv else "; this cv2 has no structured_light: ours alone (make bench compares with OpenCV)")
+        + "\n"
+    )
     first = args.scenes.split(",")[0].split(":")
-    stage_table(ours, render(rig, make_scene(rig, first[0], int(first[1])), patterns,
-                             np.random.default_rng(int(first[1]))).images, args.repeat)
-    print(f"{'scene':14} {'method':34} {'images':>6} {'ms median':>9} {'ms p90':>7} {'RMSE mm':>8} {'cover':>6} {'orders':>7}")
+    stage_table(
+        ours,
+        render(rig, make_scene(rig, first[0], int(first[1])), patterns, np.random.default_rng(int(first[1]))).images,
+        args.repeat,
+    )
+    print(
+        f"{'scene':14} {'method':34} {'images':>6} {'ms median':>9} {'ms p90':>7} "
+        f"{'RMSE mm':>8} {'cover':>6} {'orders':>7}"
+    )
     for item in args.scenes.split(","):
         kind, seed = item.split(":")
         scene = make_scene(rig, kind, int(seed))
@@ -118,14 +138,17 @@ def main():
         fringe = fringe_depth_mm(calibration, calibration.model.phase_at_depth(capture.depth_mm, u, v))
         e_ours = depth_errors(rec.depth_mm, capture.depth_mm, capture.valid, fringe)
         name = f"{kind}-{seed}"
-        print(f"{name:14} {'ours: phase, unwrap, depth + XYZ':34} {16:6d} {np.median(t_ours):9.1f} "
-              f"{np.percentile(t_ours, 90):7.1f} {e_ours.rmse_mm:8.4f} {e_ours.coverage:6.1%} {e_ours.order_errors:7d}")
+        print(
+            f"{name:14} {'ours: phase, unwrap, depth + XYZ':34} {16:6d} {np.median(t_ours):9.1f} "
+            f"{np.percentile(t_ours, 90):7.1f} {e_ours.rmse_mm:8.4f} {e_ours.coverage:6.1%} {e_ours.order_errors:7d}"
+        )
         if not with_opencv:
             continue
         images3 = [np.ascontiguousarray(img) for img in capture3.images[three_step.top_frequency_frames]]
         (wrapped, shadow), t_phase = timed(lambda: sinus.computePhaseMap(images3), args.repeat)
-        unwrapped, t_unwrap = timed(lambda: sinus.unwrapPhaseMap(wrapped, (rig.width, rig.height), shadowMask=shadow),
-                                    args.repeat)
+        unwrapped, t_unwrap = timed(
+            lambda: sinus.unwrapPhaseMap(wrapped, (rig.width, rig.height), shadowMask=shadow), args.repeat
+        )
         true_phase = calibration.model.phase_at_depth(capture.depth_mm, u, v)
         best = None
         for sign in (1.0, -1.0):  # oracle alignment: the sign and 2 pi k that fit the truth best
@@ -137,10 +160,16 @@ def main():
             e = depth_errors(depth, capture.depth_mm, capture.valid, fringe)
             best = e if best is None or e.rmse_mm < best.rmse_mm else best
         t_cv = t_phase + t_unwrap
-        print(f"{'':14} {'OpenCV computePhaseMap':34} {3:6d} {np.median(t_phase):9.1f} {np.percentile(t_phase, 90):7.1f}")
-        print(f"{'':14} {'OpenCV unwrapPhaseMap':34} {'':6} {np.median(t_unwrap):9.1f} {np.percentile(t_unwrap, 90):7.1f}")
-        print(f"{'':14} {'OpenCV total (phase only, no depth)':34} {3:6d} {np.median(t_cv):9.1f} "
-              f"{np.percentile(t_cv, 90):7.1f} {best.rmse_mm:8.4f} {best.coverage:6.1%} {best.order_errors:7d}")
+        print(
+            f"{'':14} {'OpenCV computePhaseMap':34} {3:6d} {np.median(t_phase):9.1f} {np.percentile(t_phase, 90):7.1f}"
+        )
+        print(
+            f"{'':14} {'OpenCV unwrapPhaseMap':34} {'':6} {np.median(t_unwrap):9.1f} {np.percentile(t_unwrap, 90):7.1f}"
+        )
+        print(
+            f"{'':14} {'OpenCV total (phase only, no depth)':34} {3:6d} {np.median(t_cv):9.1f} "
+            f"{np.percentile(t_cv, 90):7.1f} {best.rmse_mm:8.4f} {best.coverage:6.1%} {best.order_errors:7d}"
+        )
         print(f"{'':14} {'time ratio OpenCV / ours':34} {'':6} {np.median(t_cv) / np.median(t_ours):9.2f}\n")
 
 

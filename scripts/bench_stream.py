@@ -6,6 +6,7 @@ latency per stage, for the QoS the sensor uses (names.Qos: RELIABLE, short KEEP_
 The four nodes run as separate processes (ros2 run), this script is the robot. As a peer in the same
 run it also subscribes to the cloud BEST_EFFORT, to show what that choice would lose.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,6 +23,7 @@ from sensor_msgs.msg import PointCloud2
 from fpp_msgs_py import Topics
 from fpp_nodes.nodes.demo import DemoRobot, per_cloud
 from fpp_nodes.processes import NodeProcesses
+
 from machine import describe
 from streamkit import capture_counts, percentile_header, percentile_row
 
@@ -34,14 +36,22 @@ def main():
     args = parser.parse_args()
     logs = Path(tempfile.mkdtemp(prefix="bench_stream_"))
     procs = NodeProcesses(args.domain, logs)
-    for exe, params in (("fpp_depth", []), ("capture_sequence", []), ("fringe_camera_sim", []),
-                        ("pattern_projector", ["-p", f"rate:={args.rate}"])):
+    for exe, params in (
+        ("fpp_depth", []),
+        ("capture_sequence", []),
+        ("fringe_camera_sim", []),
+        ("pattern_projector", ["-p", f"rate:={args.rate}"]),
+    ):
         procs.start(exe, *params)
     rclpy.init(domain_id=args.domain)
     robot = DemoRobot()
     best_effort = []
-    robot.create_subscription(PointCloud2, Topics.POINTS, lambda m: best_effort.append(m.header.stamp),
-                              QoSProfile(depth=2, reliability=ReliabilityPolicy.BEST_EFFORT))
+    robot.create_subscription(
+        PointCloud2,
+        Topics.POINTS,
+        lambda m: best_effort.append(m.header.stamp),
+        QoSProfile(depth=2, reliability=ReliabilityPolicy.BEST_EFFORT),
+    )
     try:
         while not robot.clouds:  # start counting at the first cloud: every node is up
             rclpy.spin_once(robot, timeout_sec=0.1)
@@ -58,16 +68,22 @@ def main():
     rows = per_cloud(robot)
     # the nodes do not set cv2's thread count: each process gets the default this one has
     print("\n" + describe({"cv2 (each node process, default)": cv2.getNumThreads()}, libs=("numpy", "cv2")))
-    print(f"{args.seconds:g} s at {args.rate:g} camera frames/s, 640x480 mono8; 4 nodes in 4 processes + this robot "
-          "(capture_sequence's counts cover its whole run)")
-    print(f"{'frames in':>10} {'sequences complete':>18} {'dropped':>7} {'clouds here RELIABLE':>20} "
-          f"{'clouds here BEST_EFFORT':>23}")
+    print(
+        f"{args.seconds:g} s at {args.rate:g} camera frames/s, 640x480 mono8; 4 nodes in 4 processes + this robot "
+        "(capture_sequence's counts cover its whole run)"
+    )
+    print(
+        f"{'frames in':>10} {'sequences complete':>18} {'dropped':>7} {'clouds here RELIABLE':>20} "
+        f"{'clouds here BEST_EFFORT':>23}"
+    )
     print(f"{frames_in:10d} {complete:18d} {dropped:7d} {len(robot.clouds):20d} {len(best_effort):23d}")
     print("\n" + percentile_header("stage (ms)"))
     for stage in ("camera", "capture+depth", "end-to-end", "sequence"):
         print(percentile_row(stage, [r[stage] for r in rows]))
-    print(f"\nRMSE of the clouds against ground truth: {np.mean([r['rmse_mm'] for r in rows]):.4f} mm "
-          f"(mean of {len(rows)}); node logs in {logs}")
+    print(
+        f"\nRMSE of the clouds against ground truth: {np.mean([r['rmse_mm'] for r in rows]):.4f} mm "
+        f"(mean of {len(rows)}); node logs in {logs}"
+    )
 
 
 if __name__ == "__main__":

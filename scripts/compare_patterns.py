@@ -4,13 +4,15 @@ composite (the 100-fringe carrier plus a code grating that tells its order), dec
 rig meets: dark albedo, texture, defocus, noise, a projector gamma the patterns do not compensate.
 
 Prints first how close the codes of two fringe orders of the working range come for a few designs of
-the code (orders it tells apart, its row period), from the rig's exact geometry; then, per condition: the carrier's wrapped-phase error (RMS, rad and mm of depth) for each pattern,
-the code's phase error against its margin (half the closest two orders' codes), and the share of pixels whose fringe order
-is wrong from each pixel's own code and after the composite decoder's neighbourhood vote (NaN where
+the code (orders it tells apart, its row period), from the rig's exact geometry; then, per
+condition: the carrier's wrapped-phase error (RMS, rad and mm of depth) for each pattern, the code's
+phase error against its margin (half the closest two orders' codes), and the share of pixels whose
+fringe order is wrong from each pixel's own code and after the composite decoder's neighbourhood vote (NaN where
 unsure). The paper's image has no order to tell: every pixel's order there is a guess.
 
     python scripts/compare_patterns.py
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -21,7 +23,9 @@ from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.patterns import CODE_ORDERS, CODE_ROW_PERIOD_PX
 from fpp_nodes.core.phase import ftp_wrapped_phase
 from fpp_nodes.core.reconstruct import CompositeDecoder, composite_ftp_phases
-from fpp_nodes.core.simulation import SURFACE_DEPTH_MM, Rig, Scene, SceneRenderer, plane_scene, render
+from fpp_nodes.core.scenes import SURFACE_DEPTH_MM, plane_scene
+from fpp_nodes.core.simulation import Rig, Scene, SceneRenderer, render
+
 from machine import describe
 
 BORDER = 24  # FTP's edge effects are not what is compared here
@@ -70,14 +74,21 @@ def main():
     u, v = np.arange(rig.width)[None, :], np.arange(rig.height)[:, None]
     model = Calibration.load(default_calibration_path()).model
     span = np.abs(np.subtract(*(model.phase_at_depth(z, u, v) for z in SURFACE_DEPTH_MM))) / (2 * np.pi)
-    print(f"\nthe working range {SURFACE_DEPTH_MM[0]:g}-{SURFACE_DEPTH_MM[1]:g} mm spans {span.min():.1f}-{span.max():.1f} "
-          "fringe orders of the carrier across the image")
-    print(f"the code's design: the closest two orders of {SURFACE_DEPTH_MM[0]:g}-{SURFACE_DEPTH_MM[1]:g} mm "
-          "(rad, the rig's exact geometry; half of it is every decision's margin)")
+    print(
+        f"\nthe working range {SURFACE_DEPTH_MM[0]:g}-{SURFACE_DEPTH_MM[1]:g} mm spans "
+        f"{span.min():.1f}-{span.max():.1f} "
+        "fringe orders of the carrier across the image"
+    )
+    print(
+        f"the code's design: the closest two orders of {SURFACE_DEPTH_MM[0]:g}-{SURFACE_DEPTH_MM[1]:g} mm "
+        "(rad, the rig's exact geometry; half of it is every decision's margin)"
+    )
     print(f"{'orders told apart':>18} {'row period px':>14} {'closest (rad)':>14} {'2 pi / orders':>14}")
     for orders, period in ((32, 12.8), (36, 12.8), (40, 12.8), (32, 17.0), (36, 17.0), (40, 17.0), (36, 25.6)):
-        print(f"{orders:18d} {period:14.1f} {order_separation(rig, orders, period):14.3f} {2 * np.pi / orders:14.3f}"
-              + ("   (shipped)" if (orders, period) == (CODE_ORDERS, CODE_ROW_PERIOD_PX) else ""))
+        print(
+            f"{orders:18d} {period:14.1f} {order_separation(rig, orders, period):14.3f} {2 * np.pi / orders:14.3f}"
+            + ("   (shipped)" if (orders, period) == (CODE_ORDERS, CODE_ROW_PERIOD_PX) else "")
+        )
     calibration = Calibration.load(default_calibration_path())
     composite = calibration.patterns
     decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
@@ -92,14 +103,15 @@ def main():
         carrier = 2 * np.pi * composite.frequencies[-1] * xp / composite.width
         code = 2 * np.pi * (fx * xp / composite.width + fy * yp / composite.height)
         images = render(rig, scene, composite, np.random.default_rng(1)).images  # the patterns stay the 2.2 set
-        mm_per_rad = np.abs(calibration.model.depth_per_radian(carrier, *np.meshgrid(np.arange(rig.width),
-                                                                                     np.arange(rig.height))))
+        mm_per_rad = np.abs(
+            calibration.model.depth_per_radian(carrier, *np.meshgrid(np.arange(rig.width), np.arange(rig.height)))
+        )
         paper, _ = ftp_wrapped_phase(images[composite.input_index("paper")])
         phase, code_phase, _ = composite_ftp_phases(images[composite.single_shot_index], calibration)
         row = [name]
         for measured in (paper, phase):
             e = wrapped_error(measured, carrier)[inner]
-            row += [np.sqrt(np.mean(e ** 2)), np.sqrt(np.mean((e * mm_per_rad[inner]) ** 2))]
+            row += [np.sqrt(np.mean(e**2)), np.sqrt(np.mean((e * mm_per_rad[inner]) ** 2))]
         row.append(np.sqrt(np.mean(wrapped_error(code_phase, code)[inner] ** 2)))
         out = np.stack([np.sin(phase), np.cos(phase), np.sin(code_phase), np.cos(code_phase)])
         own = decoder.code_phase(phase.astype(np.float32), code_phase.astype(np.float32))
@@ -109,15 +121,23 @@ def main():
         given = np.isfinite(depth) & inner
         row += [np.mean(np.abs(depth - scene.depth_mm)[given] > 1.0) if given.any() else 0.0, given.sum() / inner.sum()]
         rows.append(row)
-    print(f"\nFTP on one image of each pattern, a plane at 1150 mm tilted 20/10 deg; every order decision's margin: "
-          f"{decoder.min_separation / 2:.3f} rad (half the closest two orders' codes, this calibration)")
-    print(f"{'condition':42} {'paper: carrier rad  mm':>22} {'composite: carrier rad  mm':>27} {'code rad':>9} "
-          f"{'own order wrong':>16} {'voted >1mm':>11} {'cover':>6}")
+    print(
+        f"\nFTP on one image of each pattern, a plane at 1150 mm tilted 20/10 deg; every order decision's margin: "
+        f"{decoder.min_separation / 2:.3f} rad (half the closest two orders' codes, this calibration)"
+    )
+    print(
+        f"{'condition':42} {'paper: carrier rad  mm':>22} {'composite: carrier rad  mm':>27} {'code rad':>9} "
+        f"{'own order wrong':>16} {'voted >1mm':>11} {'cover':>6}"
+    )
     for name, pr, pmm, cr, cmm, code_rms, own_wrong, voted_wrong, cover in rows:
-        print(f"{name:42} {pr:15.3f} {pmm:6.2f} {cr:20.3f} {cmm:6.2f} {code_rms:9.3f} {own_wrong:16.1%} "
-              f"{voted_wrong:11.2%} {cover:6.1%}")
-    print("paper: its image carries no fringe order (every order a guess); composite: the order from the code, "
-          "per pixel and after the decoder's vote (NaN where unsure, min_confidence 0.5)")
+        print(
+            f"{name:42} {pr:15.3f} {pmm:6.2f} {cr:20.3f} {cmm:6.2f} {code_rms:9.3f} {own_wrong:16.1%} "
+            f"{voted_wrong:11.2%} {cover:6.1%}"
+        )
+    print(
+        "paper: its image carries no fringe order (every order a guess); composite: the order from the code, "
+        "per pixel and after the decoder's vote (NaN where unsure, min_confidence 0.5)"
+    )
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@
 Standard library only, plus the libraries named in `libs` where they import (a missing one is left
 out), so it also runs in .venv-opencv (scripts/bench_psp.py) without fpp_nodes or rclpy.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -25,8 +26,11 @@ def cpu() -> tuple[str, str]:
         pass
     if flags is None:
         return model, "unknown"
-    if "avx512f" in flags and "X86_V4" in os.environ.get("NPY_DISABLE_CPU_FEATURES", "") \
-            and "AVX512" in os.environ.get("OPENCV_CPU_DISABLE", ""):
+    if (
+        "avx512f" in flags
+        and "X86_V4" in os.environ.get("NPY_DISABLE_CPU_FEATURES", "")
+        and "AVX512" in os.environ.get("OPENCV_CPU_DISABLE", "")
+    ):
         return model, "AVX2: its AVX-512 disabled for numpy and OpenCV by NPY_DISABLE_CPU_FEATURES, OPENCV_CPU_DISABLE"
     return model, "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "SSE/other"
 
@@ -42,7 +46,10 @@ def describe(threads: dict[str, int], libs=("numpy", "cv2", "onnxruntime")) -> s
         except ImportError:
             continue
         versions.append(f"{'opencv' if name == 'cv2' else name} {getattr(module, '__version__', '?')}")
-    return "\n".join([f"machine: {model} ({simd}), {os.cpu_count()} logical cores",
-                      "threads: " + ", ".join(f"{label} {n}" for label, n in threads.items()),
-                      "versions: " + ", ".join(versions)])
-
+    return "\n".join(
+        [
+            f"machine: {model} ({simd}), {os.cpu_count()} logical cores",
+            "threads: " + ", ".join(f"{label} {n}" for label, n in threads.items()),
+            "versions: " + ", ".join(versions),
+        ]
+    )

@@ -10,6 +10,7 @@ of kept pixels off by more than 1 mm, outside edges and at them (edge: within ED
 of a depth step of more than 2 mm or of an albedo step of more than 2x, where defocus mixes two
 surfaces' fringes into one pixel).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -23,7 +24,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fpp_nodes"))
 from fpp_nodes.core.calibration import Calibration, default_calibration_path  # noqa: E402
 from fpp_nodes.core.reconstruct import PspReconstructor, QualityLimits, multi_frequency_phase, trusted_depth  # noqa: E402
-from fpp_nodes.core.simulation import Rig, make_scene, render  # noqa: E402
+from fpp_nodes.core.scenes import make_scene  # noqa: E402
+from fpp_nodes.core.simulation import Rig, render  # noqa: E402
 
 OLD_MIN_MODULATION = 0.05  # the cut before issue 12, fraction of full scale
 EDGE_PX = 3
@@ -72,12 +74,18 @@ def table(psp, rig, seeds, cuts) -> None:
                     kept = np.isfinite(depth) & capture.valid
                     error = np.abs(depth - capture.depth_mm)
                     at_edge = edges(capture, scene.albedo)
-                    acc += (capture.valid.sum(), kept.sum(), float((error[kept] ** 2).sum()),
-                            (np.isfinite(depth) & ~at_edge & (error > 1)).sum(),
-                            (np.isfinite(depth) & at_edge & (error > 1)).sum())
+                    acc += (
+                        capture.valid.sum(),
+                        kept.sum(),
+                        float((error[kept] ** 2).sum()),
+                        (np.isfinite(depth) & ~at_edge & (error > 1)).sum(),
+                        (np.isfinite(depth) & at_edge & (error > 1)).sum(),
+                    )
             lit, kept, sq, wrong, wrong_edge = acc
-            print(f"{name:12} {label:>14} {kept / lit:7.1%} {np.sqrt(sq / max(kept, 1)):8.4f} "
-                  f"{wrong / max(kept, 1):7.2%} {wrong_edge / max(kept, 1):10.3%}")
+            print(
+                f"{name:12} {label:>14} {kept / lit:7.1%} {np.sqrt(sq / max(kept, 1)):8.4f} "
+                f"{wrong / max(kept, 1):7.2%} {wrong_edge / max(kept, 1):10.3%}"
+            )
 
 
 def main():
@@ -86,9 +94,13 @@ def main():
     rig = Rig()
     psp = PspReconstructor(Calibration.load(default_calibration_path()))
     print(f"validation scenes (seeds {VALIDATION_SEEDS}, sculpture and objects): the noise cut swept")
-    table(psp, rig, VALIDATION_SEEDS, [("B >= 5%", None)] + [(f"noise <= {t:g}", t) for t in (0.1, 0.15, 0.2, 0.25, 0.4)])
-    print(f"\nother scenes (seeds {REPORT_SEEDS}): before (B >= 5% of full scale) and after "
-          f"(expected noise <= {QualityLimits.max_depth_noise_mm:g} mm, the default)")
+    table(
+        psp, rig, VALIDATION_SEEDS, [("B >= 5%", None)] + [(f"noise <= {t:g}", t) for t in (0.1, 0.15, 0.2, 0.25, 0.4)]
+    )
+    print(
+        f"\nother scenes (seeds {REPORT_SEEDS}): before (B >= 5% of full scale) and after "
+        f"(expected noise <= {QualityLimits.max_depth_noise_mm:g} mm, the default)"
+    )
     table(psp, rig, REPORT_SEEDS, [("before", None), ("after", QualityLimits.max_depth_noise_mm)])
 
 

@@ -1,9 +1,10 @@
 """Print the sensor's health from /diagnostics (PyPI's ROS 2 has no `ros2 topic echo`).
 
-    source scripts/env.bash
-    python scripts/show_diagnostics.py            # every report as it comes, until Ctrl-C
-    python scripts/show_diagnostics.py --once     # the first report of each node seen within --wait s
+source scripts/env.bash
+python scripts/show_diagnostics.py            # every report as it comes, until Ctrl-C
+python scripts/show_diagnostics.py --once     # the first report of each node seen within --wait s
 """
+
 import argparse
 import time
 
@@ -15,8 +16,10 @@ LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 
 
 def show(status) -> str:
-    lines = [f"{status.name}: {LEVELS.get(status.level[0], status.level[0])} ({status.message}), "
-             f"hardware_id {status.hardware_id}"]
+    lines = [
+        f"{status.name}: {LEVELS.get(status.level[0], status.level[0])} ({status.message}), "
+        f"hardware_id {status.hardware_id}"
+    ]
     return "\n".join(lines + [f"    {kv.key}: {kv.value}" for kv in status.values])
 
 

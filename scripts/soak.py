@@ -26,13 +26,15 @@ and end are the medians of the first and last three samples. The sensor's memory
 working set of the largest backlog it has had (messages held in DDS histories while the process
 catches up), which takes minutes under load. Measured here in three ten-minute runs: twice a step of
 +20 MB within the window's first two minutes, then the same to 0.1 MB at every minute mark to the
-end; once +7 MB in minute 4, then -11 MB in minute 7. So the verdict compares the end with the highest sample of the window's first half: a leak keeps growing past
-it, a settled working set does not. Growth above --max-growth-mb fails the run: with the defaults
-(10 MB, 10 minutes), a leak faster than 2 MB/min; a longer run catches slower ones.
+end; once +7 MB in minute 4, then -11 MB in minute 7. So the verdict compares the end with the
+highest sample of the window's first half: a leak keeps growing past it, a settled working set does
+not. Growth above --max-growth-mb fails the run: with the defaults (10 MB, 10 minutes), a leak
+faster than 2 MB/min; a longer run catches slower ones.
 The sensor is stopped with SIGINT at the end; a Traceback in its log or an exit status other than a
 clean shutdown's fails the run.
 Exit status 0 when all three verdicts are OK, 1 otherwise.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,26 +48,31 @@ from pathlib import Path
 import cv2
 import numpy as np
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import Image, PointCloud2
 
 from fpp_msgs_py import Frames, Qos, Topics
 from fpp_nodes.processes import NodeProcesses
+
 from machine import describe
 from streamkit import capture_counts, percentile_header, percentile_row, rss_mb
 
 PERCENTILES = (50, 95, 99)
-OUTPUTS = {"points": (Topics.POINTS, PointCloud2), "depth": (Topics.DEPTH, Image),
-           "cnn points": ("cnn/" + Topics.POINTS, PointCloud2), "cnn depth": ("cnn/" + Topics.DEPTH, Image)}
+OUTPUTS = {
+    "points": (Topics.POINTS, PointCloud2),
+    "depth": (Topics.DEPTH, Image),
+    "cnn points": ("cnn/" + Topics.POINTS, PointCloud2),
+    "cnn depth": ("cnn/" + Topics.DEPTH, Image),
+}
 
 
 def raw_header(data: bytes) -> tuple[int, str, int, int]:
     """(stamp ns, frame_id, height, width) of a CDR-serialized sensor_msgs/Image or PointCloud2, which
     both begin header, height, width; read without deserializing the megabytes after them."""
     sec, nanosec, length = struct.unpack_from("<iII", data, 4)
-    frame_id = data[16:16 + length - 1].decode()
+    frame_id = data[16 : 16 + length - 1].decode()
     offset = 16 + length
     offset += -(offset - 4) % 4  # CDR aligns to the field's size, counted after the 4-byte encapsulation
     height, width = struct.unpack_from("<II", data, offset)
@@ -84,13 +91,16 @@ class SoakRobot(Node):
         self.bad = []  # outputs of the wrong size or frame
         self.diagnostics = {}  # node name -> its last DiagnosticStatus values, where nodes publish them
         deep = Qos.FRAMES  # RELIABLE, KEEP_LAST 20
-        self.create_subscription(Image, Topics.PATTERN, lambda d: self.patterns.append(raw_header(d)[0]), deep,
-                                 raw=True)
-        self.create_subscription(Image, Topics.SINGLE,
-                                 lambda d: self.singles.append((raw_header(d)[0], time.time_ns())), deep, raw=True)
+        self.create_subscription(
+            Image, Topics.PATTERN, lambda d: self.patterns.append(raw_header(d)[0]), deep, raw=True
+        )
+        self.create_subscription(
+            Image, Topics.SINGLE, lambda d: self.singles.append((raw_header(d)[0], time.time_ns())), deep, raw=True
+        )
         for name, (topic, msg_type) in OUTPUTS.items():
-            self.create_subscription(msg_type, topic, lambda d, n=name: self.outputs[n].append(self._check(n, d)), deep,
-                                     raw=True)
+            self.create_subscription(
+                msg_type, topic, lambda d, n=name: self.outputs[n].append(self._check(n, d)), deep, raw=True
+            )
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
 
     def _check(self, name: str, data: bytes) -> tuple[int, int]:
@@ -116,9 +126,14 @@ def account(robot: SoakRobot, t0: int, t1: int) -> dict:
     k = int(np.median(steps)) if len(steps) else 16  # frames per sequence
     gaps = int(sum(max(0, round(d / k) - 1) for d in steps))
     shown = sum(1 for s in patterns if t0 <= s < t1)
-    out = {"frames_per_sequence": k, "patterns": shown, "pattern_rate": shown / ((t1 - t0) / 1e9),
-           "assembled": len(singles), "lost_before_assembly": gaps,
-           "unknown_singles": sum(1 for s, arrived in robot.singles if t0 <= arrived < t1 and s not in index)}
+    out = {
+        "frames_per_sequence": k,
+        "patterns": shown,
+        "pattern_rate": shown / ((t1 - t0) / 1e9),
+        "assembled": len(singles),
+        "lost_before_assembly": gaps,
+        "unknown_singles": sum(1 for s, arrived in robot.singles if t0 <= arrived < t1 and s not in index),
+    }
     for name, got in robot.outputs.items():
         arrivals = {}
         for stamp, arrived in got:
@@ -137,8 +152,13 @@ def account(robot: SoakRobot, t0: int, t1: int) -> dict:
             latency.append((arrivals[c] - c) / 1e6)
             if not name.startswith("cnn") and index[c] + k - 1 < len(patterns):
                 last_frame_latency.append((arrivals[c] - patterns[index[c] + k - 1]) / 1e6)
-        out[name] = {"out": len(latency), "lost": len(singles) - len(latency), "latency": latency,
-                     "last_frame_latency": last_frame_latency, "matched": matched}
+        out[name] = {
+            "out": len(latency),
+            "lost": len(singles) - len(latency),
+            "latency": latency,
+            "last_frame_latency": last_frame_latency,
+            "matched": matched,
+        }
     # fpp_depth (cnn_depth) publishes the depth image and the cloud of an input from one callback: neither
     # arriving means the input was dropped in the sensor, one missing means that message was lost on its way
 
@@ -163,8 +183,9 @@ def main() -> int:
     parser.add_argument("--rate", type=float, default=30.0, help="camera frames (patterns) per second")
     parser.add_argument("--warmup", type=float, default=60.0, help="seconds after the first outputs, not counted")
     parser.add_argument("--tail", type=float, default=5.0, help="seconds to wait for the window's last outputs")
-    parser.add_argument("--max-growth-mb", type=float, default=10.0,
-                        help="largest RSS growth in the window's second half that passes")
+    parser.add_argument(
+        "--max-growth-mb", type=float, default=10.0, help="largest RSS growth in the window's second half that passes"
+    )
     parser.add_argument("--domain", type=int, default=215, help="ROS_DOMAIN_ID (outside the tests' 30-199)")
     parser.add_argument("--scene", default="sculpture")
     parser.add_argument("--threads", type=int, default=2, help="cnn_depth's onnxruntime intra-op threads")
@@ -175,12 +196,15 @@ def main() -> int:
     robot = SoakRobot()
     executor = SingleThreadedExecutor()
     executor.add_node(robot)
-    sensor = procs.start("sensor", "-p", f"rate:={args.rate}", "-p", f"scene:={args.scene}",
-                         "-p", f"threads:={args.threads}")
+    sensor = procs.start(
+        "sensor", "-p", f"rate:={args.rate}", "-p", f"scene:={args.scene}", "-p", f"threads:={args.threads}"
+    )
     rss = []  # (seconds into the window, MB)
     try:
-        if not spin_for(executor, 180, lambda: all(robot.outputs.values()) or sensor.poll() is not None) \
-                or sensor.poll() is not None:
+        if (
+            not spin_for(executor, 180, lambda: all(robot.outputs.values()) or sensor.poll() is not None)
+            or sensor.poll() is not None
+        ):
             sys.exit(f"soak: no output from every path in 180 s (sensor status {sensor.poll()}); logs in {logs}")
         spin_for(executor, args.warmup)
         t0 = time.time_ns()
@@ -211,35 +235,51 @@ def report(args, acc: dict, rss: list, robot: SoakRobot, procs: NodeProcesses, e
     bad, counts = robot.bad, capture_counts(procs.logs("sensor"))
     minutes = args.minutes
     # the sensor does not set cv2's thread count: it gets the default this process has
-    print("\n" + describe({"onnxruntime intra-op (cnn_depth)": args.threads,
-                            "cv2 (sensor process, default)": cv2.getNumThreads()}))
-    print(f"soak: composed sensor (multi-shot + single-shot in one process), {args.rate:g} camera frames/s "
-          f"requested, {minutes:g} min measured after warm-up; 640x480 mono8, {acc['frames_per_sequence']} frames "
-          "a sequence")
-    print(f"camera frames (patterns shown) {acc['patterns']}: {acc['pattern_rate']:.2f}/s of the {args.rate:g}/s "
-          "requested")
+    print(
+        "\n"
+        + describe(
+            {"onnxruntime intra-op (cnn_depth)": args.threads, "cv2 (sensor process, default)": cv2.getNumThreads()}
+        )
+    )
+    print(
+        f"soak: composed sensor (multi-shot + single-shot in one process), {args.rate:g} camera frames/s "
+        f"requested, {minutes:g} min measured after warm-up; 640x480 mono8, {acc['frames_per_sequence']} frames "
+        "a sequence"
+    )
+    print(
+        f"camera frames (patterns shown) {acc['patterns']}: {acc['pattern_rate']:.2f}/s of the {args.rate:g}/s "
+        "requested"
+    )
     print(f"\n{'path':12} {'sequences in':>12} {'out':>6} {'dropped':>8}  note")
     ms_lost = acc["lost_before_assembly"] + acc["unprocessed"]
-    print(f"{'assembly':12} {acc['assembled'] + acc['lost_before_assembly']:12d} {acc['assembled']:6d} "
-          f"{acc['lost_before_assembly']:8d}  complete sequences (gaps in their stamps are losses)")
-    for name, note in (("points", "multi-shot: every complete sequence is kept"),
-                       ("depth", "multi-shot depth/image"),
-                       ("cnn points", "single-shot: newest frame only (KEEP_LAST 1), drops expected"),
-                       ("cnn depth", "single-shot cnn/depth/image")):
+    print(
+        f"{'assembly':12} {acc['assembled'] + acc['lost_before_assembly']:12d} {acc['assembled']:6d} "
+        f"{acc['lost_before_assembly']:8d}  complete sequences (gaps in their stamps are losses)"
+    )
+    for name, note in (
+        ("points", "multi-shot: every complete sequence is kept"),
+        ("depth", "multi-shot depth/image"),
+        ("cnn points", "single-shot: newest frame only (KEEP_LAST 1), drops expected"),
+        ("cnn depth", "single-shot cnn/depth/image"),
+    ):
         row = acc[name]
         print(f"{name:12} {acc['assembled']:12d} {row['out']:6d} {row['lost']:8d}  {note}")
     if counts:
-        print(f"capture_sequence over its whole run (start-up and shutdown included): frames in {counts.frames_in}, "
-              f"sequences complete {counts.complete}, dropped {counts.dropped}"
-              f"{' ' + counts.reasons if counts.reasons else ''}, frames matching no pattern {counts.unmatched}")
+        print(
+            f"capture_sequence over its whole run (start-up and shutdown included): frames in {counts.frames_in}, "
+            f"sequences complete {counts.complete}, dropped {counts.dropped}"
+            f"{' ' + counts.reasons if counts.reasons else ''}, frames matching no pattern {counts.unmatched}"
+        )
     else:
         print(f"capture_sequence printed no counts at shutdown (see {log})")
     print("\n" + percentile_header("latency (ms)", 34, PERCENTILES) + f" {'n':>6}")
-    for label, values in (("points, from first frame's stamp", acc["points"]["latency"]),
-                          ("points, from last frame's stamp", acc["points"]["last_frame_latency"]),
-                          ("depth, from first frame's stamp", acc["depth"]["latency"]),
-                          ("cnn points, from its image's stamp", acc["cnn points"]["latency"]),
-                          ("cnn depth, from its image's stamp", acc["cnn depth"]["latency"])):
+    for label, values in (
+        ("points, from first frame's stamp", acc["points"]["latency"]),
+        ("points, from last frame's stamp", acc["points"]["last_frame_latency"]),
+        ("depth, from first frame's stamp", acc["depth"]["latency"]),
+        ("cnn points, from its image's stamp", acc["cnn points"]["latency"]),
+        ("cnn depth, from its image's stamp", acc["cnn depth"]["latency"]),
+    ):
         print(percentile_row(label, values, 34, PERCENTILES) + f" {len(values):6d}")
     print("\nresident memory of the sensor process (VmRSS, MB), each minute of the window:")
     minute_marks = [next((mb for t, mb in rss if t >= 60 * m), rss[-1][1]) for m in range(int(minutes) + 1)]
@@ -251,34 +291,46 @@ def report(args, acc: dict, rss: list, robot: SoakRobot, procs: NodeProcesses, e
     growth = end - first_half_peak
     memory_ok = growth <= args.max_growth_mb
     kept_ok = ms_lost == 0 and not bad
-    print(f"  start {start:.1f} MB, end {end:.1f} MB (medians of the first and last 3 samples, 10 s apart): "
-          f"{end - start:+.1f} MB; highest {max(values):.1f} MB, in the first half {first_half_peak:.1f} MB; "
-          f"trend {slope:+.2f} MB/min")
+    print(
+        f"  start {start:.1f} MB, end {end:.1f} MB (medians of the first and last 3 samples, 10 s apart): "
+        f"{end - start:+.1f} MB; highest {max(values):.1f} MB, in the first half {first_half_peak:.1f} MB; "
+        f"trend {slope:+.2f} MB/min"
+    )
     if robot.diagnostics:  # the nodes' own totals since start, where they publish /diagnostics
         print("\nnode counters at the end (/diagnostics, totals since start):")
         for name, values in sorted(robot.diagnostics.items()):
             totals = ", ".join(f"{k} {v}" for k, v in values.items() if v.isdigit())
             print(f"  {name}: {totals}")
-    print(f"\nRSS growth {growth:+.1f} MB over the second half ({minutes / 2:g} min; the end against the first "
-          f"half's highest; threshold {args.max_growth_mb:g} MB): "
-          f"{'OK' if memory_ok else 'FAIL'}")
-    print(f"multi-shot sequences dropped: {ms_lost} ({acc['lost_before_assembly']} before assembly, "
-          f"{acc['unprocessed']} assembled but neither depth nor cloud came out): {'OK' if kept_ok else 'FAIL'}")
-    print(f"multi-shot outputs not delivered here though their sequence came out: "
-          f"points {acc['points']['lost'] - acc['unprocessed']}, depth {acc['depth']['lost'] - acc['unprocessed']} "
-          "(RELIABLE KEEP_LAST 2 writers: under load a subscriber gets the newest, by design; not a failure)")
+    print(
+        f"\nRSS growth {growth:+.1f} MB over the second half ({minutes / 2:g} min; the end against the first "
+        f"half's highest; threshold {args.max_growth_mb:g} MB): "
+        f"{'OK' if memory_ok else 'FAIL'}"
+    )
+    print(
+        f"multi-shot sequences dropped: {ms_lost} ({acc['lost_before_assembly']} before assembly, "
+        f"{acc['unprocessed']} assembled but neither depth nor cloud came out): {'OK' if kept_ok else 'FAIL'}"
+    )
+    print(
+        f"multi-shot outputs not delivered here though their sequence came out: "
+        f"points {acc['points']['lost'] - acc['unprocessed']}, depth {acc['depth']['lost'] - acc['unprocessed']} "
+        "(RELIABLE KEEP_LAST 2 writers: under load a subscriber gets the newest, by design; not a failure)"
+    )
     if bad:
         print(f"outputs of the wrong size or frame: {len(bad)}, first: {bad[0]}")
-    print(f"single-shot frames dropped: {acc['cnn unprocessed']} of {acc['assembled']} (neither cnn output came out; "
-          f"newest frame only, by design: not a failure); cnn outputs not delivered here though their frame came "
-          f"out: points {acc['cnn points']['lost'] - acc['cnn unprocessed']}, "
-          f"depth {acc['cnn depth']['lost'] - acc['cnn unprocessed']}")
+    print(
+        f"single-shot frames dropped: {acc['cnn unprocessed']} of {acc['assembled']} (neither cnn output came out; "
+        f"newest frame only, by design: not a failure); cnn outputs not delivered here though their frame came "
+        f"out: points {acc['cnn points']['lost'] - acc['cnn unprocessed']}, "
+        f"depth {acc['cnn depth']['lost'] - acc['cnn unprocessed']}"
+    )
     traceback = "Traceback" in procs.logs("sensor")
     # On SIGINT the nodes catch KeyboardInterrupt (ExternalShutdownException), shut down and exit 0
     # (fpp_nodes/nodes/common.py spin); anything else is a crash, or -9 where SIGKILL ended a hung shutdown.
     stopped_ok = exit_status == 0 and not traceback
-    print(f"sensor stopped with SIGINT, exit status {exit_status}"
-          f"{' (a Traceback is in its log)' if traceback else ''}: {'OK' if stopped_ok else 'FAIL'}; log: {log}")
+    print(
+        f"sensor stopped with SIGINT, exit status {exit_status}"
+        f"{' (a Traceback is in its log)' if traceback else ''}: {'OK' if stopped_ok else 'FAIL'}; log: {log}"
+    )
     return 0 if memory_ok and kept_ok and stopped_ok else 1
 
 

@@ -4,6 +4,7 @@ with fpp_nodes.processes).
 
 Run the scripts in the environment of scripts/env.bash; this module is imported from scripts/.
 """
+
 from __future__ import annotations
 
 import re
@@ -16,6 +17,7 @@ import numpy as np
 @dataclass
 class CaptureCounts:
     """capture_sequence's counts over its whole run, printed at shutdown."""
+
     frames_in: int
     complete: int
     dropped: int
@@ -23,8 +25,10 @@ class CaptureCounts:
     unmatched: int  # camera frames that matched no projected pattern
 
 
-CAPTURE_SUMMARY = re.compile(r"\[capture_sequence\] frames in (\d+), sequences complete (\d+), dropped (\d+)"
-                             r"(?: (\{[^}]*\}))?, frames matching no pattern (\d+)")
+CAPTURE_SUMMARY = re.compile(
+    r"\[capture_sequence\] frames in (\d+), sequences complete (\d+), dropped (\d+)"
+    r"(?: (\{[^}]*\}))?, frames matching no pattern (\d+)"
+)
 
 
 def capture_counts(log: str) -> CaptureCounts | None:

@@ -35,6 +35,7 @@ def ideal_patterns(ideal_rig):
 def ros_graph(tmp_path):
     """(processes, robot) on a fresh ROS domain; everything is stopped afterwards."""
     from rosgraph import ProbeNode, fresh_domain_id, node_processes
+
     domain = fresh_domain_id()
     procs = node_processes(domain, tmp_path)
     robot = ProbeNode(domain)

@@ -3,6 +3,7 @@
 Each test gets its own ROS_DOMAIN_ID so parallel or leftover runs never cross. Nodes are started the
 way a user starts them: `ros2 run fpp_nodes <executable>` in the environment of scripts/env.bash.
 """
+
 from __future__ import annotations
 
 import itertools

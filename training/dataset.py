@@ -21,6 +21,7 @@ On disk (a folder per set and split, one file per sample):
 
 The uint16 encoding holds 1000.01-1655.35 mm in 0.01 mm steps (rounding adds 0.003 mm RMS).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,16 +37,20 @@ from fpp_nodes.core.calibration import Calibration, default_calibration_path, pi
 from fpp_nodes.core.patterns import CODE_ORDERS
 from fpp_nodes.core.phase import phase_sums
 from fpp_nodes.core.reconstruct import PspReconstructor, full_scale
-from fpp_nodes.core.simulation import Rig, make_scene, random_rig, render
+from fpp_nodes.core.scenes import make_scene
+from fpp_nodes.core.simulation import Rig, random_rig, render
 
 SPLITS = ("train", "val", "test")
 # set name -> (scene kind, paper's counts, first seed, single-shot frame); seeds never overlap between
 # sets or splits; the paper's sets render the paper's 16 frames (the same images as before the composite)
-SETS = {"single": ("sculpture", (540, 60, 72), 100_000, "paper"), "multi": ("objects", (630, 70, 40), 200_000, "paper"),
-        "families": ("families", (1000, 120, 180), 300_000, "paper"),
-        "surface": ("families", (600, 48, 96), 400_000, "paper"),
-        "composite": ("families", (360, 40, 120), 500_000, "composite"),
-        "composite_paper": ("families", (360, 40, 120), 500_000, "paper")}
+SETS = {
+    "single": ("sculpture", (540, 60, 72), 100_000, "paper"),
+    "multi": ("objects", (630, 70, 40), 200_000, "paper"),
+    "families": ("families", (1000, 120, 180), 300_000, "paper"),
+    "surface": ("families", (600, 48, 96), 400_000, "paper"),
+    "composite": ("families", (360, 40, 120), 500_000, "composite"),
+    "composite_paper": ("families", (360, 40, 120), 500_000, "paper"),
+}
 # composite_paper: the composite set's scenes (the same seeds), the paper's single-shot frame: the two
 # patterns compared on the same scenes with the same training budget (README, Table 1).
 # The families set spans the working volume: backgrounds anywhere in 1100-1300 mm. The surface set puts
@@ -123,8 +128,11 @@ def make_sample(kind: str, seed: int, families: bool = False, surface_mm: float 
     capture = render(rig, make_scene(rig, kind, seed, surface_mm), patterns, np.random.default_rng(seed))
     rec = psp(capture.images)
     truth = np.where(capture.valid, capture.depth_mm, np.nan)
-    sample = {"input": capture.images[patterns.single_shot_index],
-              "label": encode_depth(rec.depth_mm), "truth": encode_depth(truth)}
+    sample = {
+        "input": capture.images[patterns.single_shot_index],
+        "label": encode_depth(rec.depth_mm),
+        "truth": encode_depth(truth),
+    }
     if families:
         sample.update(phase_targets(capture.images, rec, psp.calibration), family=kind)
     return sample
@@ -141,8 +149,10 @@ def phase_targets(images: np.ndarray, rec, calibration: Calibration) -> dict:
     top = images[patterns.top_frequency_frames]
     y, x = phase_sums(top)
     scale = 2.0 / (patterns.steps * full_scale(top.dtype))
-    targets = {"phase": np.where(np.isfinite(rec.depth_mm), rec.phase, np.nan).astype(np.float32),
-               "fringe": np.stack([y * scale, x * scale]).astype(np.float16)}
+    targets = {
+        "phase": np.where(np.isfinite(rec.depth_mm), rec.phase, np.nan).astype(np.float32),
+        "fringe": np.stack([y * scale, x * scale]).astype(np.float16),
+    }
     if patterns.single_shot == "composite":
         u, v = pixel_grid(rec.phase.shape)
         code = calibration.code_row_phase_at_depth(rec.depth_mm, u, v) + rec.phase / CODE_ORDERS
@@ -174,38 +184,57 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
             path = folder / split / f"{seed_of(set_name, split, i)}.npz"
             if not path.exists():
                 families = kind == "families"
-                jobs.append((family_of(split, i) if families else kind, seed_of(set_name, split, i), path, families,
-                             surface_mm))
+                jobs.append(
+                    (family_of(split, i) if families else kind, seed_of(set_name, split, i), path, families, surface_mm)
+                )
     rig, patterns = Rig(), calibration.patterns
-    (folder / "dataset.yaml").write_text(yaml.safe_dump({
-        "format": "fpp_dataset", "version": FORMAT_VERSION, "set": set_name, "scene": kind,
-        **({"train_families": list(TRAIN_FAMILIES), "held_out_families": list(HELD_OUT_FAMILIES)}
-           if kind == "families" else {}),
-        **({"background_centre_mm": surface_mm} if surface_mm is not None else {}),
-        "counts": dict(zip(SPLITS, counts)), "first_seeds": {s: seed_of(set_name, s, 0) for s in SPLITS},
-        "input": patterns.names()[patterns.single_shot_index], "label": "multi-shot PSP depth",
-        "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},
-        "rig": rig.to_dict(), "calibration": calibration.to_dict()}, sort_keys=False))
+    (folder / "dataset.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "format": "fpp_dataset",
+                "version": FORMAT_VERSION,
+                "set": set_name,
+                "scene": kind,
+                **(
+                    {"train_families": list(TRAIN_FAMILIES), "held_out_families": list(HELD_OUT_FAMILIES)}
+                    if kind == "families"
+                    else {}
+                ),
+                **({"background_centre_mm": surface_mm} if surface_mm is not None else {}),
+                "counts": dict(zip(SPLITS, counts)),
+                "first_seeds": {s: seed_of(set_name, s, 0) for s in SPLITS},
+                "input": patterns.names()[patterns.single_shot_index],
+                "label": "multi-shot PSP depth",
+                "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},
+                "rig": rig.to_dict(),
+                "calibration": calibration.to_dict(),
+            },
+            sort_keys=False,
+        )
+    )
     with ProcessPoolExecutor(workers, initializer=_init, initargs=(calibration,)) as pool:
         for _ in tqdm(pool.map(_write, jobs), total=len(jobs), desc=f"{set_name} set", disable=None):
             pass
     return folder
 
 
-def write_bag_set(bag, out, split: str = "train", calibration_path: str | None = None,
-                  max_time_offset_s: float = 0.005) -> int:
+def write_bag_set(
+    bag, out, split: str = "train", calibration_path: str | None = None, max_time_offset_s: float = 0.005
+) -> int:
     """A data set from a recorded bag of full fringe sequences (the path of a user with real hardware:
     record, label with multi-shot, train). Frames are assembled into sequences as capture_sequence
     does; each complete sequence becomes a sample whose label is its multi-shot reconstruction. There
     is no exact depth for a real scene: truth is all 0 (invalid). Returns the number of samples."""
     from fpp_msgs_py import image_to_numpy, stamp_ns  # rosbags' messages have sensor_msgs' fields
-
     from fpp_nodes.bag import TYPESTORE, read_bag
     from fpp_nodes.core.sequence import SequenceAssembler, ShownPatterns
 
     recording = read_bag(bag)
-    calibration = (Calibration.from_yaml(recording.calibration_yaml) if calibration_path is None and recording.calibration_yaml
-                   else Calibration.load(calibration_path or default_calibration_path()))
+    calibration = (
+        Calibration.from_yaml(recording.calibration_yaml)
+        if calibration_path is None and recording.calibration_yaml
+        else Calibration.load(calibration_path or default_calibration_path())
+    )
     patterns = calibration.patterns
     psp, assembler = PspReconstructor(calibration), SequenceAssembler(patterns.count)
     shown, count = ShownPatterns(patterns, int(max_time_offset_s * 1e9)), 0
@@ -227,16 +256,32 @@ def write_bag_set(bag, out, split: str = "train", calibration_path: str | None =
         if sequence is not None:
             rec = psp(sequence.images)
             composite = phase_targets(sequence.images, rec, calibration) if patterns.single_shot == "composite" else {}
-            np.savez_compressed(folder / f"{sequence.stamps_ns[0]}.npz",
-                                input=sequence.images[patterns.single_shot_index], label=encode_depth(rec.depth_mm),
-                                truth=np.zeros(rec.depth_mm.shape, np.uint16), **composite)
+            np.savez_compressed(
+                folder / f"{sequence.stamps_ns[0]}.npz",
+                input=sequence.images[patterns.single_shot_index],
+                label=encode_depth(rec.depth_mm),
+                truth=np.zeros(rec.depth_mm.shape, np.uint16),
+                **composite,
+            )
             count += 1
-    (Path(out) / "dataset.yaml").write_text(yaml.safe_dump({
-        "format": "fpp_dataset", "version": FORMAT_VERSION, "set": "bag", "bag": str(bag),
-        "counts": {split: count}, "input": patterns.names()[patterns.single_shot_index], "label": "multi-shot PSP depth",
-        "truth": "none (a recorded scene): all 0", "sequences_dropped": assembler.stats.dropped,
-        "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},
-        "calibration": calibration.to_dict()}, sort_keys=False))
+    (Path(out) / "dataset.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "format": "fpp_dataset",
+                "version": FORMAT_VERSION,
+                "set": "bag",
+                "bag": str(bag),
+                "counts": {split: count},
+                "input": patterns.names()[patterns.single_shot_index],
+                "label": "multi-shot PSP depth",
+                "truth": "none (a recorded scene): all 0",
+                "sequences_dropped": assembler.stats.dropped,
+                "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},
+                "calibration": calibration.to_dict(),
+            },
+            sort_keys=False,
+        )
+    )
     return count
 
 
@@ -245,8 +290,9 @@ def split_files(folder, split: str) -> list[Path]:
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="python -m training.dataset", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m training.dataset", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--out", default="data/fpp")
     parser.add_argument("--set", choices=sorted(SETS), action="append", help="default: single and multi (the paper's)")
     parser.add_argument("--counts", help="train,val,test (default: the paper's)")

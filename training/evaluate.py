@@ -10,6 +10,7 @@ exact depth by more than half the depth one fringe period of the highest frequen
     python -m training.evaluate --data data/fpp/single runs/fcn/best.pt runs/aen/best.pt runs/unet/best.pt
     python -m training.evaluate --data data/fpp/families --families runs/phase/phase.onnx runs/surface/surface.onnx
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,7 +25,7 @@ from fpp_nodes.core.calibration import Calibration, pixel_grid
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import network_input, trusted_single_shot
 from fpp_nodes.core.reconstruct import CompositeDecoder, reconstruct_ftp
-from fpp_nodes.core.simulation import SURFACE_DEPTH_MM
+from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
 from fpp_nodes.core.workflow import fringe_depth_mm
 
 from .dataset import load_sample, split_files
@@ -56,6 +57,7 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     phase-aware model, the mean confidence in the fringe order over the lit pixels that show fringes;
     beside them FTP on the same images where the set is the composite's, and the multi-shot label."""
     from .figures import load_models
+
     models = load_models(model_paths)
     info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
     calibration = Calibration.from_dict(info["calibration"])
@@ -70,8 +72,13 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
             family = str(z["family"]) if "family" in z else info.get("scene", "?")
         image, label, truth = load_sample(f)
         for name, predict in models:
-            depth, confidence = (label, None) if predict is None else \
-                predict.infer(image) if hasattr(predict, "infer") else (predict(image), None)
+            depth, confidence = (
+                (label, None)
+                if predict is None
+                else predict.infer(image)
+                if hasattr(predict, "infer")
+                else (predict(image), None)
+            )
             errors.setdefault((family, name), ErrorTotals()).add(depth, truth, SILENT_ERROR_MM)
             if confidence is not None:
                 known = confidence[np.isfinite(confidence) & np.isfinite(truth)]
@@ -87,21 +94,29 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
         for n in names:
             e, (conf, known) = errors[(family, n)], sure.get((family, n), (0.0, 0))
             rmse = f"{e.rmse:8.3f}" if e.compared else f"{'-':>8}"
-            cells.append(f"{rmse} {e.share_over:6.2%} {e.coverage:7.1%} " + (f"{conf / known:5.2f}" if known else f"{'-':>5}"))
+            cells.append(
+                f"{rmse} {e.share_over:6.2%} {e.coverage:7.1%} " + (f"{conf / known:5.2f}" if known else f"{'-':>5}")
+            )
         print(f"{family + (' *' if family in held_out else ''):14}" + "".join(f"{c:>32}" for c in cells))
-    print(f"RMSE against the exact depth over the pixels given a depth; >1mm: share of those off by more than "
-          f"{SILENT_ERROR_MM:g} mm (silent errors); cover: share of lit pixels given a depth; conf: a phase-aware "
-          "model's mean confidence in the fringe order over the lit pixels that show fringes")
+    print(
+        f"RMSE against the exact depth over the pixels given a depth; >1mm: share of those off by more than "
+        f"{SILENT_ERROR_MM:g} mm (silent errors); cover: share of lit pixels given a depth; conf: a phase-aware "
+        "model's mean confidence in the fringe order over the lit pixels that show fringes"
+    )
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="python -m training.evaluate", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m training.evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("checkpoints", nargs="*")
     parser.add_argument("--data", required=True)
     parser.add_argument("--limit", type=int, default=0, help="at most N samples per split (0: all)")
-    parser.add_argument("--families", action="store_true",
-                        help="the per-family table of the test split instead (checkpoints or .onnx models)")
+    parser.add_argument(
+        "--families",
+        action="store_true",
+        help="the per-family table of the test split instead (checkpoints or .onnx models)",
+    )
     args = parser.parse_args(argv)
     if args.families:
         family_table(args.data, args.checkpoints, limit=args.limit)
@@ -139,8 +154,10 @@ def main(argv=None):
     print(f"{'Test RMSE vs exact (mm)':28}" + "".join(f"{exact[c][1].rmse:12.3f}" for c in columns))
     print(f"{'Test coverage vs exact':28}" + "".join(f"{exact[c][1].coverage:12.2%}" for c in columns))
     print(f"{'Test fringe-order errors':28}" + "".join(f"{exact[c][1].share_over:12.3%}" for c in columns))
-    print("errors against the multi-shot label (the paper's ground truth) unless marked exact; "
-          "the multi-shot column vs its own label is 0 by definition")
+    print(
+        "errors against the multi-shot label (the paper's ground truth) unless marked exact; "
+        "the multi-shot column vs its own label is 0 by definition"
+    )
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ is checked with onnx.checker, then run with onnxruntime at a size other than the
 compared with torch (PARITY_TOLERANCE_MM). The card (<model>.yaml) records the rig, input
 normalisation, output units, training data and metrics, and the file's sha256.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,9 +25,9 @@ import yaml
 
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.model import PhaseOrderDecoder, fringe_mask, network_input, trusted_single_shot
-from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.core.patterns import PatternSet
-from fpp_nodes.core.simulation import SURFACE_DEPTH_MM
+from fpp_nodes.core.reconstruct import CompositeDecoder
+from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
 
 from .dataset import load_sample, split_files
 from .train import load_checkpoint, model_from_checkpoint, predict
@@ -58,17 +59,29 @@ def choose_min_confidence(model, data: str, decoder, limit: int = 60) -> dict:
         for c in CONFIDENCE_GRID:
             depth = decoder(out, c, fringes)[0]
             for edge in (True, False):
-                shown = (trusted_single_shot(depth.copy(), image, fringes=fringes) if edge
-                         else np.where(fringes, depth, np.nan))
+                shown = (
+                    trusted_single_shot(depth.copy(), image, fringes=fringes)
+                    if edge
+                    else np.where(fringes, depth, np.nan)
+                )
                 ok = np.isfinite(shown) & np.isfinite(truth)
                 counts[c, edge] += (ok.sum(), (np.abs(shown[ok] - truth[ok]) > 1.0).sum(), np.isfinite(truth).sum())
     rows = {key: {"coverage": n[0] / max(n[2], 1), "silent_errors": n[1] / max(n[0], 1)} for key, n in counts.items()}
-    good = [c for c in CONFIDENCE_GRID if rows[c, True]["silent_errors"] <= SILENT_ERROR_BUDGET and rows[c, True]["coverage"] > 0]
+    good = [
+        c
+        for c in CONFIDENCE_GRID
+        if rows[c, True]["silent_errors"] <= SILENT_ERROR_BUDGET and rows[c, True]["coverage"] > 0
+    ]
     chosen = good[0] if good else CONFIDENCE_GRID[-1]
-    return {"min_confidence": chosen, "chosen_on": f"{data} val", "silent_error_budget": SILENT_ERROR_BUDGET,
-            "validation": {str(c): {k: round(float(v), 5) for k, v in rows[c, True].items()} for c in CONFIDENCE_GRID},
-            "validation_without_edge_rule": {str(c): {k: round(float(v), 5) for k, v in rows[c, False].items()}
-                                             for c in CONFIDENCE_GRID}}
+    return {
+        "min_confidence": chosen,
+        "chosen_on": f"{data} val",
+        "silent_error_budget": SILENT_ERROR_BUDGET,
+        "validation": {str(c): {k: round(float(v), 5) for k, v in rows[c, True].items()} for c in CONFIDENCE_GRID},
+        "validation_without_edge_rule": {
+            str(c): {k: round(float(v), 5) for k, v in rows[c, False].items()} for c in CONFIDENCE_GRID
+        },
+    }
 
 
 def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | None = None) -> dict:
@@ -81,9 +94,16 @@ def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | No
     example = torch.rand(1, 1, 480 // cfg.downsample // 32 * 32, 640 // cfg.downsample // 32 * 32)
     warnings.filterwarnings("ignore", "You are using the legacy TorchScript-based ONNX export", DeprecationWarning)
     # dynamo=False: the TorchScript exporter gives plain dynamic height/width for this fully convolutional net
-    torch.onnx.export(model, (example,), str(out), dynamo=False, input_names=["image"], output_names=[output],
-                      dynamic_axes={"image": {0: "batch", 2: "height", 3: "width"},
-                                    output: {0: "batch", 2: "height", 3: "width"}}, opset_version=17)
+    torch.onnx.export(
+        model,
+        (example,),
+        str(out),
+        dynamo=False,
+        input_names=["image"],
+        output_names=[output],
+        dynamic_axes={"image": {0: "batch", 2: "height", 3: "width"}, output: {0: "batch", 2: "height", 3: "width"}},
+        opset_version=17,
+    )
     onnx.checker.check_model(onnx.load(str(out)))
     probe = torch.rand(1, 1, *parity_size)
     with torch.no_grad():
@@ -91,28 +111,60 @@ def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | No
     session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
     got = session.run([output], {"image": probe.numpy()})[0]
     np.testing.assert_allclose(got, expected, atol=PARITY_TOLERANCE_MM, rtol=0)
-    dataset = yaml.safe_load((Path(cfg.data) / "dataset.yaml").read_text()) if (Path(cfg.data) / "dataset.yaml").exists() else {}
+    dataset = (
+        yaml.safe_load((Path(cfg.data) / "dataset.yaml").read_text())
+        if (Path(cfg.data) / "dataset.yaml").exists()
+        else {}
+    )
     last = ckpt["history"][-1] if ckpt["history"] else {}
     calibration = dataset.get("calibration")
     patterns = PatternSet.from_dict(calibration["patterns"]) if calibration else None
     card = {
-        "format": CARD_FORMAT, "version": 1, "model": out.name, "sha256": sha256(out),
-        "architecture": cfg.arch, "width": cfg.width, "parameters": sum(p.numel() for p in model.parameters()),
-        "input": {"name": "image", "shape": "N x 1 x H x W, H and W multiples of 32",
-                  "normalisation": "camera image / full scale (255 for mono8, 65535 for mono16)",
-                  "content": patterns.names()[patterns.single_shot_index] if patterns else "unknown",
-                  "downsample": cfg.downsample, "camera": dataset.get("calibration", {}).get("camera")},
-        "output": ({"name": output, "channels": "fringe numerator, denominator (full-scale units), r (fringe "
-                    "orders from the calibration's reference-depth phase), log sigma of r (orders)"} if cfg.arch == "phase"
-                   else {"name": output, "channels": "carrier numerator, denominator, code numerator, denominator "
-                         "(full-scale units)"} if cfg.arch == "composite"
-                   else {"name": output, "units": "mm along the camera's optical axis"}),
-        "rig": dataset.get("rig"), "patterns": dataset.get("calibration", {}).get("patterns"),
-        "training": {"data": cfg.data, "counts": dataset.get("counts"), "epochs": ckpt["epoch"],
-                     "seconds": round(ckpt["train_seconds"], 1), "config": ckpt["config"]},
-        "metrics": metrics or {"val_rmse_mm_vs_label": last.get("val_rmse_mm"), "val_mre_vs_label": last.get("val_mre")},
-        "parity": {"size": list(parity_size), "max_abs_diff_mm": float(np.abs(got - expected).max()),
-                   "tolerance_mm": PARITY_TOLERANCE_MM},
+        "format": CARD_FORMAT,
+        "version": 1,
+        "model": out.name,
+        "sha256": sha256(out),
+        "architecture": cfg.arch,
+        "width": cfg.width,
+        "parameters": sum(p.numel() for p in model.parameters()),
+        "input": {
+            "name": "image",
+            "shape": "N x 1 x H x W, H and W multiples of 32",
+            "normalisation": "camera image / full scale (255 for mono8, 65535 for mono16)",
+            "content": patterns.names()[patterns.single_shot_index] if patterns else "unknown",
+            "downsample": cfg.downsample,
+            "camera": dataset.get("calibration", {}).get("camera"),
+        },
+        "output": (
+            {
+                "name": output,
+                "channels": "fringe numerator, denominator (full-scale units), r (fringe "
+                "orders from the calibration's reference-depth phase), log sigma of r (orders)",
+            }
+            if cfg.arch == "phase"
+            else {
+                "name": output,
+                "channels": "carrier numerator, denominator, code numerator, denominator (full-scale units)",
+            }
+            if cfg.arch == "composite"
+            else {"name": output, "units": "mm along the camera's optical axis"}
+        ),
+        "rig": dataset.get("rig"),
+        "patterns": dataset.get("calibration", {}).get("patterns"),
+        "training": {
+            "data": cfg.data,
+            "counts": dataset.get("counts"),
+            "epochs": ckpt["epoch"],
+            "seconds": round(ckpt["train_seconds"], 1),
+            "config": ckpt["config"],
+        },
+        "metrics": metrics
+        or {"val_rmse_mm_vs_label": last.get("val_rmse_mm"), "val_mre_vs_label": last.get("val_mre")},
+        "parity": {
+            "size": list(parity_size),
+            "max_abs_diff_mm": float(np.abs(got - expected).max()),
+            "tolerance_mm": PARITY_TOLERANCE_MM,
+        },
     }
     if phase_aware:
         card["calibration"] = calibration
@@ -127,14 +179,17 @@ def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | No
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="python -m training.export", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m training.export", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("checkpoint")
     parser.add_argument("--out", required=True)
     args = parser.parse_args(argv)
     card = export(args.checkpoint, args.out)
-    print(f"wrote {args.out} ({card['parameters']} parameters, sha256 {card['sha256'][:12]}...) and its card; "
-          f"parity at {card['parity']['size']}: {card['parity']['max_abs_diff_mm']:.2e} mm")
+    print(
+        f"wrote {args.out} ({card['parameters']} parameters, sha256 {card['sha256'][:12]}...) and its card; "
+        f"parity at {card['parity']['size']}: {card['parity']['max_abs_diff_mm']:.2e} mm"
+    )
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ The background plane is fitted to the ground truth (image border first, then eve
 0.5 mm of it); "object" pixels are those more than 1 mm in front of it. --also copies other pictures
 (e.g. the `fpp` tool's) into the same folder, optionally scaled, as <folder>_<name>.png.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,10 +23,11 @@ import cv2
 import numpy as np
 import yaml
 
-from fpp_nodes.core import pictures
+from fpp_nodes import pictures
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.reconstruct import reconstruct_ftp
-from fpp_nodes.core.simulation import Rig, Scene, plane_scene, render
+from fpp_nodes.core.scenes import plane_scene
+from fpp_nodes.core.simulation import Rig, Scene, render
 
 from .dataset import load_sample, split_files
 
@@ -41,6 +43,7 @@ def load_models(paths) -> list[tuple[str, object]]:
     for path in map(Path, paths):
         if path.suffix == ".onnx":
             from fpp_nodes.core.model import DepthModel
+
             model = DepthModel(path)
             arch = str(model.card.get("architecture"))
             name = NAMES.get(arch, path.stem) + ("" if path.stem in (arch, "unet") else f" ({path.stem})")
@@ -48,11 +51,17 @@ def load_models(paths) -> list[tuple[str, object]]:
         else:
             from .evaluate import predict_full
             from .train import load_checkpoint, model_from_checkpoint
+
             net, cfg = model_from_checkpoint(load_checkpoint(path))
             if cfg.arch == "phase":
-                raise SystemExit(f"{path}: a phase-aware checkpoint; export it (python -m training.export) and "
-                                 "pass the .onnx, whose card holds the threshold chosen on validation data")
-            name, predict = NAMES.get(cfg.arch, cfg.arch), (lambda image, net=net, ds=cfg.downsample: predict_full(net, image, ds))
+                raise SystemExit(
+                    f"{path}: a phase-aware checkpoint; export it (python -m training.export) and "
+                    "pass the .onnx, whose card holds the threshold chosen on validation data"
+                )
+            name, predict = (
+                NAMES.get(cfg.arch, cfg.arch),
+                (lambda image, net=net, ds=cfg.downsample: predict_full(net, image, ds)),
+            )
         taken = [n for n, _ in models]
         models.append((name if name not in taken else f"{name} ({path.parent.name})", predict))
     return models
@@ -60,7 +69,7 @@ def load_models(paths) -> list[tuple[str, object]]:
 
 def background_plane(truth: np.ndarray, border: int = 16) -> np.ndarray:
     """The plane z = a u + b v + c (mm) of the background behind the objects, per pixel."""
-    v, u = np.mgrid[:truth.shape[0], :truth.shape[1]].astype(np.float64)
+    v, u = np.mgrid[: truth.shape[0], : truth.shape[1]].astype(np.float64)
     ok = np.isfinite(truth)
     fit = ok.copy()
     fit[border:-border, border:-border] = False
@@ -77,8 +86,10 @@ def object_box(mask: np.ndarray, margin: int = 12) -> tuple[slice, slice]:
     rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     if rows.size == 0:
         return slice(None), slice(None)
-    return (slice(max(rows[0] - margin, 0), rows[-1] + margin + 1),
-            slice(max(cols[0] - margin, 0), cols[-1] + margin + 1))
+    return (
+        slice(max(rows[0] - margin, 0), rows[-1] + margin + 1),
+        slice(max(cols[0] - margin, 0), cols[-1] + margin + 1),
+    )
 
 
 def figures(files, models, calibration: Calibration, panel: int = 260, row: int | None = None):
@@ -94,26 +105,43 @@ def figures(files, models, calibration: Calibration, panel: int = 260, row: int 
         lo, hi = pictures.depth_range(truth[obj])
 
         def view(depth):
-            return pictures.cloud_view(np.where(obj, depth, np.nan), calibration.camera, size=(panel, panel),
-                                       lo=lo, hi=hi, step=1)
+            return pictures.cloud_view(
+                np.where(obj, depth, np.nan), calibration.camera, size=(panel, panel), lo=lo, hi=hi, step=1
+            )
 
         marked = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
         cv2.line(marked, (0, line), (image.shape[1] - 1, line), MARK_BGR, 2)
         crop = marked[rs, cs]
-        tiles = [cv2.resize(crop, (max(1, round(crop.shape[1] * panel / crop.shape[0])), panel), interpolation=cv2.INTER_AREA),
-                 view(truth)] + [view(p) for p in preds.values()]
+        tiles = [
+            cv2.resize(
+                crop, (max(1, round(crop.shape[1] * panel / crop.shape[0])), panel), interpolation=cv2.INTER_AREA
+            ),
+            view(truth),
+        ] + [view(p) for p in preds.values()]
         rows2.append(pictures.side_by_side(tiles, [f"input, row {line}", "ground truth"] + list(preds)))
-        curves = {"ground truth": truth, "multi-shot label": label, **preds,
-                  "FTP": reconstruct_ftp(image, calibration).depth_mm}
+        curves = {
+            "ground truth": truth,
+            "multi-shot label": label,
+            **preds,
+            "FTP": reconstruct_ftp(image, calibration).depth_mm,
+        }
         heights = {name: (plane - depth)[line, cs] for name, depth in curves.items()}
         top = float(np.nanmax(heights["ground truth"]))
-        profiles.append(pictures.height_profile(line, heights, ylabel="height above the background (mm)",
-                                                ylim=(-0.15 * top - 1, 1.2 * top + 1), x_start=cs.start or 0,
-                                                title=f"{Path(f).stem}, row {line}"))
+        profiles.append(
+            pictures.height_profile(
+                line,
+                heights,
+                ylabel="height above the background (mm)",
+                ylim=(-0.15 * top - 1, 1.2 * top + 1),
+                x_start=cs.start or 0,
+                title=f"{Path(f).stem}, row {line}",
+            )
+        )
     width = max(r.shape[1] for r in rows2)
     gap = np.full((8, width, 3), 255, np.uint8)
-    figure2 = np.vstack(sum(([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=255), gap]
-                             for r in rows2), [])[:-1])
+    figure2 = np.vstack(
+        sum(([np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=255), gap] for r in rows2), [])[:-1]
+    )
     return figure2, pictures.side_by_side(profiles)
 
 
@@ -139,10 +167,13 @@ def failure_scenes(rig: Rig) -> dict:
     x, y = rig.camera().rays()
     X, Y = x * rig.standoff_mm, y * rig.standoff_mm
     plane = plane_scene(rig, rig.standoff_mm).depth_mm
-    sphere = np.sqrt(np.clip(40.0 ** 2 - X ** 2 - Y ** 2, 0, None))
+    sphere = np.sqrt(np.clip(40.0**2 - X**2 - Y**2, 0, None))
     blocks = np.select([np.abs(Y) > 30, X < -25, X < 25], [0.0, 30.0, 60.0], 90.0)
-    heights = {"bump 20 mm": 20.0 * np.exp(-(X ** 2 + Y ** 2) / (2 * 18.0 ** 2)), "sphere r 40 mm": sphere,
-               "blocks 30/60/90 mm": blocks}
+    heights = {
+        "bump 20 mm": 20.0 * np.exp(-(X**2 + Y**2) / (2 * 18.0**2)),
+        "sphere r 40 mm": sphere,
+        "blocks 30/60/90 mm": blocks,
+    }
     scenes = {name: Scene(name, plane - h, np.full(plane.shape, 0.9)) for name, h in heights.items()}
     scenes["plane tilted 15 deg"] = plane_scene(rig, rig.standoff_mm, tilt_x_deg=15.0)
     return scenes
@@ -161,22 +192,27 @@ def failure_figure(models, rig: Rig, seed: int = 5) -> tuple[np.ndarray, list]:
             depth = predict(capture.images[patterns.input_index(getattr(predict, "reads", "paper"))])
             ok = np.isfinite(depth) & np.isfinite(truth)
             d = depth[ok] - truth[ok]
-            numbers = (float(np.sqrt(np.mean(d * d))) if d.size else float("nan"),
-                       float(np.mean(np.abs(d) > 1.0)) if d.size else 0.0, ok.sum() / np.isfinite(truth).sum())
+            numbers = (
+                float(np.sqrt(np.mean(d * d))) if d.size else float("nan"),
+                float(np.mean(np.abs(d) > 1.0)) if d.size else 0.0,
+                ok.sum() / np.isfinite(truth).sum(),
+            )
             table.append((name, model_name, *numbers))
             error = np.where(ok, depth - truth, np.nan)
             tiles.append(pictures._colour(error, -5.0, 5.0, pictures.DIVERGING))
             captions.append(f"{model_name}: {numbers[1]:.0%} >1mm, cover {numbers[2]:.0%}")
         rows.append(pictures.side_by_side(tiles, captions, height=240))
     width = max(r.shape[1] for r in rows)
-    picture = np.vstack([cv2.copyMakeBorder(r, 0, 6, 0, width - r.shape[1], cv2.BORDER_CONSTANT, value=(255, 255, 255))
-                         for r in rows])
+    picture = np.vstack(
+        [cv2.copyMakeBorder(r, 0, 6, 0, width - r.shape[1], cv2.BORDER_CONSTANT, value=(255, 255, 255)) for r in rows]
+    )
     return picture, table
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="python -m training.figures", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m training.figures", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("models", nargs="*", help="checkpoints (.pt) or ONNX models (.onnx with card), any subset")
     parser.add_argument("--data", help="a data set folder (training.dataset); without it only --also is done")
     parser.add_argument("--out", required=True)
@@ -184,10 +220,18 @@ def main(argv=None):
     parser.add_argument("--samples", type=int, default=2, help="rows of Figure 2, spread over the split")
     parser.add_argument("--row", type=int, default=None, help="image row of Figure 3 (default: across the object)")
     parser.add_argument("--panel", type=int, default=260, help="panel height of Figure 2, px")
-    parser.add_argument("--also", action="append", default=[], metavar="FILE[:SCALE]",
-                        help="another picture to copy beside them (repeat for more)")
-    parser.add_argument("--failures", action="store_true",
-                        help="failures.png instead: issue 10's failure cases (error maps, +-5 mm) and their numbers")
+    parser.add_argument(
+        "--also",
+        action="append",
+        default=[],
+        metavar="FILE[:SCALE]",
+        help="another picture to copy beside them (repeat for more)",
+    )
+    parser.add_argument(
+        "--failures",
+        action="store_true",
+        help="failures.png instead: issue 10's failure cases (error maps, +-5 mm) and their numbers",
+    )
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -197,8 +241,10 @@ def main(argv=None):
         print(f"{'scene':22}{'model':>28}{'RMSE mm':>10}{'>1mm':>8}{'cover':>8}")
         for name, model_name, rmse_mm, silent, cover in table:
             print(f"{name:22}{model_name[:27]:>28}{rmse_mm:10.3f}{silent:8.1%}{cover:8.1%}")
-        print(f"wrote {out / 'failures.png'}; RMSE against the exact depth over the pixels given a depth, "
-              ">1mm: share of those off by more than 1 mm, cover: share of lit pixels given a depth")
+        print(
+            f"wrote {out / 'failures.png'}; RMSE against the exact depth over the pixels given a depth, "
+            ">1mm: share of those off by more than 1 mm, cover: share of lit pixels given a depth"
+        )
         return
     written = [copy_scaled(item, out) for item in args.also]
     data = Path(args.data) if args.data else None

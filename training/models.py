@@ -13,6 +13,7 @@ depth_offset + depth_scale * o, so the exported model speaks millimetres.
   1/16 and 1/32 scale, the coarse score upsampled and summed with the finer ones (FCN-8s), then
   upsampled 8x to the input size.
 """
+
 from __future__ import annotations
 
 import torch
@@ -21,8 +22,12 @@ from torch import nn
 
 class DoubleConv(nn.Sequential):
     def __init__(self, cin: int, cout: int, dropout: float = 0.0):
-        layers = [nn.Conv2d(cin, cout, 3, padding=1), nn.ReLU(inplace=True),
-                  nn.Conv2d(cout, cout, 3, padding=1), nn.ReLU(inplace=True)]
+        layers = [
+            nn.Conv2d(cin, cout, 3, padding=1),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(cout, cout, 3, padding=1),
+            nn.ReLU(inplace=True),
+        ]
         if dropout:
             layers.append(nn.Dropout2d(dropout))
         super().__init__(*layers)
@@ -70,7 +75,7 @@ class EncoderDecoder(nn.Module):
 
     def __init__(self, width: int, skips: bool, dropout: float, depth_offset: float, depth_scale: float):
         super().__init__()
-        c = [width * 2 ** i for i in range(6)]  # channels at full, 1/2, ... 1/32 scale
+        c = [width * 2**i for i in range(6)]  # channels at full, 1/2, ... 1/32 scale
         self.skips = skips
         self.inc = DoubleConv(3, c[0])
         self.downs = nn.ModuleList(Down(c[i], c[i + 1]) for i in range(4))
@@ -101,8 +106,14 @@ class FCN(nn.Module):
         self.block3 = Down(c[1], c[2])  # 1/4
         self.block4 = Down(c[2], c[3])  # 1/8
         self.block5 = Down(c[3], c[4])  # 1/16
-        self.fc = nn.Sequential(nn.MaxPool2d(2), nn.Conv2d(c[4], 2 * c[4], 3, padding=1), nn.ReLU(inplace=True),
-                                nn.Dropout2d(dropout), nn.Conv2d(2 * c[4], 2 * c[4], 1), nn.ReLU(inplace=True))  # 1/32
+        self.fc = nn.Sequential(
+            nn.MaxPool2d(2),
+            nn.Conv2d(c[4], 2 * c[4], 3, padding=1),
+            nn.ReLU(inplace=True),
+            nn.Dropout2d(dropout),
+            nn.Conv2d(2 * c[4], 2 * c[4], 1),
+            nn.ReLU(inplace=True),
+        )  # 1/32
         score = c[2]
         self.score32 = nn.Conv2d(2 * c[4], score, 1)
         self.score16 = nn.Conv2d(c[4], score, 1)
@@ -137,11 +148,17 @@ class PhaseOrderNet(nn.Module):
     def __init__(self, width: int = 16, phase_width: int = 16):
         super().__init__()
         p = phase_width
-        self.phase = nn.Sequential(nn.Conv2d(1, p, 6, stride=2, padding=2), nn.ReLU(inplace=True),
-                                   nn.Conv2d(p, p, 3, padding=1), nn.ReLU(inplace=True),
-                                   nn.Conv2d(p, p, 3, padding=1), nn.ReLU(inplace=True),
-                                   nn.Conv2d(p, 8, 1), nn.PixelShuffle(2))
-        c = [width * 2 ** i for i in range(4)]
+        self.phase = nn.Sequential(
+            nn.Conv2d(1, p, 6, stride=2, padding=2),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(p, p, 3, padding=1),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(p, p, 3, padding=1),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(p, 8, 1),
+            nn.PixelShuffle(2),
+        )
+        c = [width * 2**i for i in range(4)]
         self.inc = DoubleConv(8, c[0])
         self.downs = nn.ModuleList(Down(c[i], c[i + 1]) for i in range(3))
         self.ups = nn.ModuleList(Up(c[i + 1], c[i], c[i]) for i in reversed(range(3)))
@@ -150,15 +167,18 @@ class PhaseOrderNet(nn.Module):
     @staticmethod
     def phase_steps(num, den):
         """sin and cos of the wrapped-phase step to the next pixel along u and along v."""
+
         def step(n0, d0, n1, d1):
             sin, cos = n1 * d0 - d1 * n0, n1 * n0 + d1 * d0
             norm = torch.sqrt(sin * sin + cos * cos + 1e-8)
             return sin / norm, cos / norm
+
         su, cu = step(num[..., :-1], den[..., :-1], num[..., 1:], den[..., 1:])
         sv, cv = step(num[..., :-1, :], den[..., :-1, :], num[..., 1:, :], den[..., 1:, :])
         pad_u, pad_v = (0, 1, 0, 0), (0, 0, 0, 1)
-        return [nn.functional.pad(t, pad_u, mode="replicate") for t in (su, cu)] + \
-               [nn.functional.pad(t, pad_v, mode="replicate") for t in (sv, cv)]
+        return [nn.functional.pad(t, pad_u, mode="replicate") for t in (su, cu)] + [
+            nn.functional.pad(t, pad_v, mode="replicate") for t in (sv, cv)
+        ]
 
     def forward(self, image):
         fringe = self.phase(image)
@@ -220,8 +240,13 @@ def build(architecture: str, width: int, dropout: float, depth_mm: tuple[float, 
 
 def layer_counts(model: nn.Module) -> dict:
     kinds = {"conv": nn.Conv2d, "maxpool": nn.MaxPool2d, "transpose": nn.ConvTranspose2d}
-    return {k: sum(isinstance(m, t) and not isinstance(m, nn.ConvTranspose2d) if k == "conv" else isinstance(m, t)
-                   for m in model.modules()) for k, t in kinds.items()}
+    return {
+        k: sum(
+            isinstance(m, t) and not isinstance(m, nn.ConvTranspose2d) if k == "conv" else isinstance(m, t)
+            for m in model.modules()
+        )
+        for k, t in kinds.items()
+    }
 
 
 STRIDE = 32  # every network halves the image five times

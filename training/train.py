@@ -9,6 +9,7 @@ and PNG. Resume with --resume. Several processes or machines: launch with torchr
     python -m training.train --data data/fpp/single --arch unet --width 16 --epochs 300 --out runs/unet
     torchrun --nproc_per_node 2 -m training.train ...
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,19 +23,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-import yaml
 import torch.distributed as dist
+import yaml
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, Dataset, DistributedSampler
 from tqdm import tqdm
-
-from fpp_nodes.core.pictures import depth_colours
 
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import PhaseOrderDecoder, network_input
 from fpp_nodes.core.reconstruct import CompositeDecoder
-from fpp_nodes.core.simulation import SURFACE_DEPTH_MM
+from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
+from fpp_nodes.pictures import depth_colours
 
 from .dataset import load_phase_targets, load_sample, split_files
 from .models import ARCHITECTURES, build, pad_to_stride
@@ -95,8 +95,13 @@ class FringeDepthSet(Dataset):
         self.items = []
         for f in files:
             image, label, truth = load_sample(f)
-            self.items.append((shrink(network_input(image), downsample),  # as cnn_depth: scale, then shrink
-                               shrink(label, downsample, True), shrink(truth, downsample, True)))
+            self.items.append(
+                (
+                    shrink(network_input(image), downsample),  # as cnn_depth: scale, then shrink
+                    shrink(label, downsample, True),
+                    shrink(truth, downsample, True),
+                )
+            )
         self.augment = augment
         self.rng = np.random.default_rng(seed)
 
@@ -144,8 +149,12 @@ class FringePhaseSet(Dataset):
         if self.augment:
             image, gain = photometric(self.rng, image)
             fringe = fringe * gain
-        return (torch.from_numpy(image)[None], torch.from_numpy(fringe), torch.from_numpy(orders)[None],
-                torch.from_numpy(label)[None])
+        return (
+            torch.from_numpy(image)[None],
+            torch.from_numpy(fringe),
+            torch.from_numpy(orders)[None],
+            torch.from_numpy(label)[None],
+        )
 
 
 class CompositeSet(Dataset):
@@ -167,7 +176,7 @@ class CompositeSet(Dataset):
             return image, np.concatenate([z["fringe"], z["code"]]), label
 
     def __len__(self):  # with crops, an epoch still covers about every pixel once
-        return len(self.items) * (max(1, self.items[0][0].size // self.crop ** 2) if self.crop and self.items else 1)
+        return len(self.items) * (max(1, self.items[0][0].size // self.crop**2) if self.crop and self.items else 1)
 
     def __getitem__(self, i):
         image, targets, label = self.items[i % len(self.items)]
@@ -242,13 +251,25 @@ def evaluate_phase(model, loader, device, decoder) -> dict:
     for image, *targets, label in loader:
         pred = predict(model, image.to(device))
         targets = [t.to(device) for t in targets]
-        losses.append((composite_loss(pred, *targets) if isinstance(decoder, CompositeDecoder)
-                       else phase_order_loss(pred, *targets)).item())
+        losses.append(
+            (
+                composite_loss(pred, *targets)
+                if isinstance(decoder, CompositeDecoder)
+                else phase_order_loss(pred, *targets)
+            ).item()
+        )
         for out, ref in zip(pred.cpu().numpy(), label[:, 0].numpy()):
-            depth, _ = decoder(out, VALIDATION_CONFIDENCE["composite" if isinstance(decoder, CompositeDecoder) else "phase"])
+            depth, _ = decoder(
+                out, VALIDATION_CONFIDENCE["composite" if isinstance(decoder, CompositeDecoder) else "phase"]
+            )
             errors.add(depth, ref, bound=1.0)
-    return {"loss": float(np.mean(losses)), "rmse_mm": errors.rmse, "mre": float("nan"), "coverage": errors.coverage,
-            "silent_errors": errors.share_over}
+    return {
+        "loss": float(np.mean(losses)),
+        "rmse_mm": errors.rmse,
+        "mre": float("nan"),
+        "coverage": errors.coverage,
+        "silent_errors": errors.share_over,
+    }
 
 
 @torch.no_grad()
@@ -262,16 +283,32 @@ def evaluate(model, loader, device, loss_kind: str = "mse") -> dict:
         pred = pred.cpu().numpy()
         to_label.add(pred, label.numpy())
         to_truth.add(pred, truth.numpy())
-    return {"loss": float(np.mean(losses)), "rmse_mm": to_label.rmse, "mre": to_label.mre,
-            "truth_rmse_mm": to_truth.rmse, "truth_mre": to_truth.mre}
+    return {
+        "loss": float(np.mean(losses)),
+        "rmse_mm": to_label.rmse,
+        "mre": to_label.mre,
+        "truth_rmse_mm": to_truth.rmse,
+        "truth_mre": to_truth.mre,
+    }
 
 
 def save_checkpoint(path, model, optimizer, scheduler, config: TrainConfig, epoch: int, history: list, seconds: float):
     net = model.module if isinstance(model, DistributedDataParallel) else model
     tmp = Path(str(path) + ".tmp")
-    torch.save({"format": "fpp_checkpoint", "version": 1, "config": asdict(config), "epoch": epoch,
-                "model": net.state_dict(), "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
-                "history": history, "train_seconds": seconds}, tmp)
+    torch.save(
+        {
+            "format": "fpp_checkpoint",
+            "version": 1,
+            "config": asdict(config),
+            "epoch": epoch,
+            "model": net.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "scheduler": scheduler.state_dict(),
+            "history": history,
+            "train_seconds": seconds,
+        },
+        tmp,
+    )
     tmp.replace(path)  # never a half-written checkpoint
 
 
@@ -299,8 +336,10 @@ def write_curves(out: Path, history: list) -> None:
         writer.writeheader()
         writer.writerows(history)
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     fig, ax = plt.subplots(figsize=(6, 4))
     epochs = [h["epoch"] for h in history]
     ax.plot(epochs, [h["train_loss"] for h in history], label="train loss")
@@ -334,7 +373,9 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
         raise ValueError(f"{config.data} has no train or val samples (make them with python -m training.dataset)")
     phase_aware = config.arch in ("phase", "composite")
     if phase_aware:
-        calibration = Calibration.from_dict(yaml.safe_load((Path(config.data) / "dataset.yaml").read_text())["calibration"])
+        calibration = Calibration.from_dict(
+            yaml.safe_load((Path(config.data) / "dataset.yaml").read_text())["calibration"]
+        )
         if config.arch == "composite":
             decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
             train_set = CompositeSet(train_files, config.augment, config.crop, config.seed + rank)
@@ -347,8 +388,15 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
         train_set = FringeDepthSet(train_files, config.downsample, config.augment, config.seed + rank)
         val_set = FringeDepthSet(val_files, config.downsample)
     sampler = DistributedSampler(train_set, seed=config.seed) if distributed else None
-    loader = DataLoader(train_set, config.batch_size, shuffle=sampler is None, sampler=sampler,
-                        num_workers=config.workers, worker_init_fn=reseed_worker, persistent_workers=config.workers > 0)
+    loader = DataLoader(
+        train_set,
+        config.batch_size,
+        shuffle=sampler is None,
+        sampler=sampler,
+        num_workers=config.workers,
+        worker_init_fn=reseed_worker,
+        persistent_workers=config.workers > 0,
+    )
     val_loader = DataLoader(val_set, config.batch_size)
     showcase = val_set[0]  # one fixed validation image
 
@@ -372,7 +420,9 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
         if sampler is not None:
             sampler.set_epoch(epoch)
         total, batches = 0.0, 0
-        for image, *targets in tqdm(loader, desc=f"epoch {epoch}/{config.epochs}", leave=False, disable=None if rank == 0 else True):
+        for image, *targets in tqdm(
+            loader, desc=f"epoch {epoch}/{config.epochs}", leave=False, disable=None if rank == 0 else True
+        ):
             optimizer.zero_grad()
             pred = predict(model, image.to(device))
             if config.arch == "composite":
@@ -385,41 +435,60 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
             optimizer.step()
             total, batches = total + loss.item(), batches + 1
         seconds += time.perf_counter() - started
-        metrics = (evaluate_phase(model, val_loader, device, decoder) if phase_aware
-                   else evaluate(model, val_loader, device, config.loss))
+        metrics = (
+            evaluate_phase(model, val_loader, device, decoder)
+            if phase_aware
+            else evaluate(model, val_loader, device, config.loss)
+        )
         val_loss = metrics["loss"]
         scheduler.step(val_loss)
         if rank != 0:
             continue
-        history.append({"epoch": epoch, "train_loss": total / max(batches, 1), "val_loss": val_loss,
-                        "val_rmse_mm": metrics["rmse_mm"], "val_mre": metrics["mre"],
-                        **{f"val_{k}": metrics[k] for k in ("coverage", "silent_errors") if k in metrics},
-                        "lr": optimizer.param_groups[0]["lr"], "seconds": seconds})
+        history.append(
+            {
+                "epoch": epoch,
+                "train_loss": total / max(batches, 1),
+                "val_loss": val_loss,
+                "val_rmse_mm": metrics["rmse_mm"],
+                "val_mre": metrics["mre"],
+                **{f"val_{k}": metrics[k] for k in ("coverage", "silent_errors") if k in metrics},
+                "lr": optimizer.param_groups[0]["lr"],
+                "seconds": seconds,
+            }
+        )
         net = model.module if distributed else model
         net.eval()
         with torch.no_grad():
             shown = predict(net, showcase[0][None].to(device))[0].cpu().numpy()
         shown = decoder(shown, VALIDATION_CONFIDENCE[config.arch])[0] if phase_aware else shown[0]
-        cv2.imwrite(str(out / "epochs" / f"epoch_{epoch:04d}.png"),
-                    np.hstack([depth_colours(showcase[-1 if phase_aware else 1][0].numpy()), depth_colours(shown)]))
+        cv2.imwrite(
+            str(out / "epochs" / f"epoch_{epoch:04d}.png"),
+            np.hstack([depth_colours(showcase[-1 if phase_aware else 1][0].numpy()), depth_colours(shown)]),
+        )
         save_checkpoint(out / "last.pt", model, optimizer, scheduler, config, epoch, history, seconds)
         if val_loss < best:
             best = val_loss
             save_checkpoint(out / "best.pt", model, optimizer, scheduler, config, epoch, history, seconds)
         write_curves(out, history)
-        extra = (f", coverage {metrics['coverage']:.1%}, > 1 mm {metrics['silent_errors']:.2%}" if phase_aware else "")
-        print(f"epoch {epoch}: train loss {history[-1]['train_loss']:.4g}, val loss {val_loss:.4g}, "
-              f"val RMSE {metrics['rmse_mm']:.3f} mm{extra}, lr {history[-1]['lr']:.2g}, {seconds:.0f} s", flush=True)
+        extra = f", coverage {metrics['coverage']:.1%}, > 1 mm {metrics['silent_errors']:.2%}" if phase_aware else ""
+        print(
+            f"epoch {epoch}: train loss {history[-1]['train_loss']:.4g}, val loss {val_loss:.4g}, "
+            f"val RMSE {metrics['rmse_mm']:.3f} mm{extra}, lr {history[-1]['lr']:.2g}, {seconds:.0f} s",
+            flush=True,
+        )
     if distributed:
         dist.destroy_process_group()
     return history[-1] if history else {}
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="python -m training.train", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m training.train", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     for f in fields(TrainConfig):
-        kind = {"bool": lambda s: s.lower() in ("1", "true", "yes")}.get(f.type, {"int": int, "float": float}.get(f.type, str))
+        kind = {"bool": lambda s: s.lower() in ("1", "true", "yes")}.get(
+            f.type, {"int": int, "float": float}.get(f.type, str)
+        )
         parser.add_argument(f"--{f.name.replace('_', '-')}", type=kind, default=f.default)
     parser.add_argument("--resume", help="a last.pt to go on from")
     args = vars(parser.parse_args(argv))
@@ -427,7 +496,7 @@ def main(argv=None):
     try:
         train(TrainConfig(**args), resume)
     except ValueError as e:
-        raise SystemExit(f"train: error: {e}")
+        raise SystemExit(f"train: error: {e}") from None
 
 
 if __name__ == "__main__":

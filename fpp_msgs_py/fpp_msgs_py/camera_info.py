@@ -1,4 +1,5 @@
 """sensor_msgs/CameraInfo for a distortion-free pinhole camera (the calibration's intrinsics)."""
+
 from __future__ import annotations
 
 from sensor_msgs.msg import CameraInfo

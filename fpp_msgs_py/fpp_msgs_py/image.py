@@ -3,6 +3,7 @@
 Reading is zero-copy where the message allows (a view on msg.data); a message whose size, step or
 encoding is wrong raises ImageError naming the problem.
 """
+
 from __future__ import annotations
 
 import array
@@ -10,8 +11,13 @@ import array
 import numpy as np
 from sensor_msgs.msg import Image
 
-ENCODINGS = {"mono8": np.dtype(np.uint8), "8UC1": np.dtype(np.uint8), "mono16": np.dtype(np.uint16),
-             "16UC1": np.dtype(np.uint16), "32FC1": np.dtype(np.float32)}
+ENCODINGS = {
+    "mono8": np.dtype(np.uint8),
+    "8UC1": np.dtype(np.uint8),
+    "mono16": np.dtype(np.uint16),
+    "16UC1": np.dtype(np.uint16),
+    "32FC1": np.dtype(np.float32),
+}
 _BY_DTYPE = {np.dtype(np.uint8): "mono8", np.dtype(np.uint16): "mono16", np.dtype(np.float32): "32FC1"}
 
 
@@ -35,7 +41,9 @@ def numpy_to_image(array_2d: np.ndarray, header=None, encoding: str | None = Non
     msg.is_bigendian = 0
     msg.step = a.shape[1] * a.dtype.itemsize
     data = array.array("B")
-    data.frombytes(np.ascontiguousarray(a.astype(a.dtype.newbyteorder("<"), copy=False)).reshape(-1).view(np.uint8).data)
+    data.frombytes(
+        np.ascontiguousarray(a.astype(a.dtype.newbyteorder("<"), copy=False)).reshape(-1).view(np.uint8).data
+    )
     msg.data = data
     return msg
 

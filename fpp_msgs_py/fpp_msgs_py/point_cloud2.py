@@ -3,6 +3,7 @@
 Layout follows depth_image_proc's point_cloud_xyz: height x width of the source image, row-major,
 NaN where there is no measurement, is_dense False.
 """
+
 from __future__ import annotations
 
 import array
@@ -15,8 +16,10 @@ _XYZI = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")
 
 
 def _fields(dtype: np.dtype) -> list[PointField]:
-    return [PointField(name=name, offset=dtype.fields[name][1], datatype=PointField.FLOAT32, count=1)
-            for name in dtype.names]
+    return [
+        PointField(name=name, offset=dtype.fields[name][1], datatype=PointField.FLOAT32, count=1)
+        for name in dtype.names
+    ]
 
 
 def xyz_to_cloud(xyz: np.ndarray, header=None, intensity: np.ndarray | None = None) -> PointCloud2:
@@ -53,10 +56,18 @@ def cloud_to_xyz(msg: PointCloud2) -> np.ndarray:
     if not all(n in names and names[n].datatype == PointField.FLOAT32 for n in "xyz"):
         raise ValueError("cloud needs float32 fields x, y and z")
     if len(msg.data) != msg.row_step * msg.height or msg.row_step < msg.point_step * msg.width:
-        raise ValueError(f"cloud data is {len(msg.data)} bytes, expected row_step x height = {msg.row_step * msg.height}")
+        raise ValueError(
+            f"cloud data is {len(msg.data)} bytes, expected row_step x height = {msg.row_step * msg.height}"
+        )
     order = ">" if msg.is_bigendian else "<"
-    dtype = np.dtype({"names": list("xyz"), "formats": [order + "f4"] * 3,
-                      "offsets": [names[n].offset for n in "xyz"], "itemsize": msg.point_step})
-    rows = np.frombuffer(msg.data, np.uint8).reshape(msg.height, msg.row_step)[:, :msg.point_step * msg.width]
+    dtype = np.dtype(
+        {
+            "names": list("xyz"),
+            "formats": [order + "f4"] * 3,
+            "offsets": [names[n].offset for n in "xyz"],
+            "itemsize": msg.point_step,
+        }
+    )
+    rows = np.frombuffer(msg.data, np.uint8).reshape(msg.height, msg.row_step)[:, : msg.point_step * msg.width]
     points = np.ascontiguousarray(rows).view(dtype).reshape(msg.height, msg.width)
     return np.stack([points["x"], points["y"], points["z"]], axis=-1).astype(np.float32)

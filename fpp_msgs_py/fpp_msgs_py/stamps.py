@@ -1,4 +1,5 @@
 """Message stamps as integer nanoseconds, the unit sequences and bags are keyed by."""
+
 from std_msgs.msg import Header
 
 

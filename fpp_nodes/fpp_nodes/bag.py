@@ -7,6 +7,7 @@ depth/image, depth/camera_info), to look at; a replay leaves those out and makes
 default (it opens in Foxglove), sqlite3 on request; message definitions are stored, so the stock
 `ros2 bag` reads both.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -16,10 +17,16 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 CALIBRATION_TOPIC = "/fpp/calibration"
-STREAM_TOPICS = {"/projector/pattern": "sensor_msgs/msg/Image", "/camera/image_raw": "sensor_msgs/msg/Image",
-                 "/camera/camera_info": "sensor_msgs/msg/CameraInfo"}
-OUTPUT_TOPICS = {"/points": "sensor_msgs/msg/PointCloud2", "/depth/image": "sensor_msgs/msg/Image",
-                 "/depth/camera_info": "sensor_msgs/msg/CameraInfo"}
+STREAM_TOPICS = {
+    "/projector/pattern": "sensor_msgs/msg/Image",
+    "/camera/image_raw": "sensor_msgs/msg/Image",
+    "/camera/camera_info": "sensor_msgs/msg/CameraInfo",
+}
+OUTPUT_TOPICS = {
+    "/points": "sensor_msgs/msg/PointCloud2",
+    "/depth/image": "sensor_msgs/msg/Image",
+    "/depth/camera_info": "sensor_msgs/msg/CameraInfo",
+}
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
 
@@ -45,8 +52,9 @@ class BagWriter:
 
     def write_calibration(self, yaml_text: str, stamp_ns: int) -> None:
         msg = TYPESTORE.types["std_msgs/msg/String"](data=yaml_text)
-        self.write(CALIBRATION_TOPIC, "std_msgs/msg/String", stamp_ns,
-                   TYPESTORE.serialize_cdr(msg, "std_msgs/msg/String"))
+        self.write(
+            CALIBRATION_TOPIC, "std_msgs/msg/String", stamp_ns, TYPESTORE.serialize_cdr(msg, "std_msgs/msg/String")
+        )
 
     def close(self) -> None:
         self.writer.close()

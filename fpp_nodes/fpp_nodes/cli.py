@@ -1,12 +1,13 @@
 """`fpp`: fringe projection profilometry without ROS.
 
-    fpp patterns    the pattern set as PNG files at the projector's resolution, in projection order
-    fpp simulate    rig + scene -> fringe images + ground truth
-    fpp calibrate   captures of planes at known depths -> calibration file
-    fpp reconstruct fringe images -> depth (.npy/.tiff), point cloud (.ply), pictures (.png)
-    fpp evaluate    depth vs ground truth -> RMSE, MRE, coverage (and pictures of the error)
-    fpp demo        all of the above on the simulated rig, with a table of the results
+fpp patterns    the pattern set as PNG files at the projector's resolution, in projection order
+fpp simulate    rig + scene -> fringe images + ground truth
+fpp calibrate   captures of planes at known depths -> calibration file
+fpp reconstruct fringe images -> depth (.npy/.tiff), point cloud (.ply), pictures (.png)
+fpp evaluate    depth vs ground truth -> RMSE, MRE, coverage (and pictures of the error)
+fpp demo        all of the above on the simulated rig, with a table of the results
 """
+
 from __future__ import annotations
 
 import argparse
@@ -19,14 +20,22 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from .core import io, pictures
+from . import pictures
+from .core import io
 from .core.calibration import Calibration, CalibrationError, CameraIntrinsics, back_project
 from .core.metrics import depth_errors
 from .core.patterns import PatternSet, generate_patterns
 from .core.reconstruct import CompositeDecoder, PspReconstructor, QualityLimits, Reconstruction, reconstruct_ftp
-from .core.simulation import Rig, SCENE_KINDS, SURFACE_DEPTH_MM, make_scene, render, scene_from_file
-from .core.workflow import (CALIBRATION_DEPTHS_MM, calibrate_from_planes, fringe_depth_mm, held_out_scenes, score,
-                            simulated_calibration)
+from .core.scenes import SCENE_KINDS, SURFACE_DEPTH_MM, make_scene, scene_from_file
+from .core.simulation import Rig, render
+from .core.workflow import (
+    CALIBRATION_DEPTHS_MM,
+    calibrate_from_planes,
+    fringe_depth_mm,
+    held_out_scenes,
+    score,
+    simulated_calibration,
+)
 
 
 def _rig(args) -> Rig:
@@ -37,11 +46,14 @@ def _write_capture(folder: Path, capture, rig: Rig, patterns: PatternSet, scene_
     io.write_stack(folder, capture.images)
     np.save(folder / "depth_gt_mm.npy", capture.depth_mm.astype(np.float32))
     cv2.imwrite(str(folder / "valid_gt.png"), capture.valid.astype(np.uint8) * 255)
-    (folder / "sensor.yaml").write_text(yaml.safe_dump(
-        {"camera": rig.camera().to_dict(), "patterns": patterns.to_dict()}, sort_keys=False))
-    (folder / "capture.yaml").write_text(yaml.safe_dump(
-        {"scene": scene_name, "seed": seed, "rig": rig.to_dict(),
-         "images": patterns.names()}, sort_keys=False))
+    (folder / "sensor.yaml").write_text(
+        yaml.safe_dump({"camera": rig.camera().to_dict(), "patterns": patterns.to_dict()}, sort_keys=False)
+    )
+    (folder / "capture.yaml").write_text(
+        yaml.safe_dump(
+            {"scene": scene_name, "seed": seed, "rig": rig.to_dict(), "images": patterns.names()}, sort_keys=False
+        )
+    )
 
 
 def cmd_patterns(args) -> None:
@@ -54,11 +66,19 @@ def cmd_patterns(args) -> None:
         names.append(f"pattern_{i:02d}.png")
         if not cv2.imwrite(str(out / names[-1]), image):
             raise OSError(f"cannot write {out / names[-1]}")
-    (out / "patterns.yaml").write_text(yaml.safe_dump(
-        {"patterns": patterns.to_dict(), "files": [{"file": f, "shows": n} for f, n in zip(names, patterns.names())]},
-        sort_keys=False))
-    print(f"wrote {len(names)} patterns ({patterns.width}x{patterns.height}, {patterns.bit_depth}-bit, in projection "
-          f"order) and patterns.yaml to {out}")
+    (out / "patterns.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "patterns": patterns.to_dict(),
+                "files": [{"file": f, "shows": n} for f, n in zip(names, patterns.names())],
+            },
+            sort_keys=False,
+        )
+    )
+    print(
+        f"wrote {len(names)} patterns ({patterns.width}x{patterns.height}, {patterns.bit_depth}-bit, in projection "
+        f"order) and patterns.yaml to {out}"
+    )
 
 
 def cmd_simulate(args) -> None:
@@ -81,13 +101,17 @@ def _read_sensor(path) -> tuple[CameraIntrinsics, PatternSet]:
     try:
         data = yaml.safe_load(Path(path).read_text())
         cam = data["camera"]
-        return (CameraIntrinsics(**{k: cam[k] for k in ("width", "height", "fx", "fy", "cx", "cy")}),
-                PatternSet.from_dict(data["patterns"]))
+        return (
+            CameraIntrinsics(**{k: cam[k] for k in ("width", "height", "fx", "fy", "cx", "cy")}),
+            PatternSet.from_dict(data["patterns"]),
+        )
     except OSError as e:
         raise CalibrationError(f"cannot read sensor description {path}: {e.strerror}") from None
     except (yaml.YAMLError, KeyError, TypeError) as e:
-        raise CalibrationError(f"sensor description {path} needs 'camera' (width, height, fx, fy, cx, cy) "
-                               f"and 'patterns' sections ({type(e).__name__}: {e})") from None
+        raise CalibrationError(
+            f"sensor description {path} needs 'camera' (width, height, fx, fy, cx, cy) "
+            f"and 'patterns' sections ({type(e).__name__}: {e})"
+        ) from None
 
 
 def cmd_calibrate(args) -> None:
@@ -109,25 +133,39 @@ def cmd_calibrate(args) -> None:
     print(f"wrote {args.out}")
 
 
-def _reconstruct(images: np.ndarray, calibration: Calibration, method: str, limits: QualityLimits,
-                 model_path: str | None = None):
+def _reconstruct(
+    images: np.ndarray, calibration: Calibration, method: str, limits: QualityLimits, model_path: str | None = None
+):
     if method == "psp":
         return PspReconstructor(calibration, limits)(images)
     index = calibration.patterns.single_shot_index if len(images) > 1 else 0
     if method == "cnn":  # what cnn_depth does, offline
         from .core.model import DepthModel, default_model_path
+
         model = DepthModel(model_path or default_model_path())
         model.check_patterns(calibration.patterns)
         depth, confidence = model.infer(images[index])
         quality = confidence if confidence is not None else np.isfinite(depth).astype(np.float32)
-        return Reconstruction(depth, back_project(depth, calibration.camera), np.isfinite(depth), quality,
-                              np.full(depth.shape, np.nan, np.float32))
+        return Reconstruction(
+            depth,
+            back_project(depth, calibration.camera),
+            np.isfinite(depth),
+            quality,
+            np.full(depth.shape, np.nan, np.float32),
+        )
     decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM) if calibration.code_model is not None else None
     return reconstruct_ftp(images[index], calibration, limits, decoder)
 
 
-def write_pictures(out: Path, depth_mm: np.ndarray, xyz_mm: np.ndarray | None = None, truth_mm: np.ndarray | None = None,
-                   name: str = "", method: str = "measured", others: dict | None = None) -> list[Path]:
+def write_pictures(
+    out: Path,
+    depth_mm: np.ndarray,
+    xyz_mm: np.ndarray | None = None,
+    truth_mm: np.ndarray | None = None,
+    name: str = "",
+    method: str = "measured",
+    others: dict | None = None,
+) -> list[Path]:
     """depth.png (scale bar in mm), cloud.png (oblique view), error.png (with ground truth) and
     profile.png (depth along the row that crosses the objects: truth, this method and others, a dict
     of name -> depth); colours on the truth's range where given. name suffixes all but the profile's
@@ -138,8 +176,10 @@ def write_pictures(out: Path, depth_mm: np.ndarray, xyz_mm: np.ndarray | None = 
     row = pictures.profile_row(reference)
     curves = {"ground truth": truth_mm} if truth_mm is not None else {}
     curves.update({method: depth_mm, **(others or {})})
-    drawn = {f"depth{suffix}.png": pictures.depth_picture(depth_mm, lo, hi, title=f"{method} depth"),
-             "profile.png": pictures.height_profile(row, {k: v[row] for k, v in curves.items()})}
+    drawn = {
+        f"depth{suffix}.png": pictures.depth_picture(depth_mm, lo, hi, title=f"{method} depth"),
+        "profile.png": pictures.height_profile(row, {k: v[row] for k, v in curves.items()}),
+    }
     if xyz_mm is not None:
         drawn[f"cloud{suffix}.png"] = pictures.cloud_view(xyz_mm, lo=lo, hi=hi)
     if truth_mm is not None:
@@ -165,8 +205,11 @@ def _truth_beside(images: list, truth: str | None) -> np.ndarray | None:
 def cmd_reconstruct(args) -> None:
     calibration = Calibration.load(args.calibration)
     images = io.read_stack(io.image_paths(args.images))
-    limits = QualityLimits(max_depth_noise_mm=args.max_depth_noise, max_depth_step_mm=args.max_depth_step,
-                           min_modulation=args.min_modulation)
+    limits = QualityLimits(
+        max_depth_noise_mm=args.max_depth_noise,
+        max_depth_step_mm=args.max_depth_step,
+        min_modulation=args.min_modulation,
+    )
     start = time.perf_counter()
     rec = _reconstruct(images, calibration, args.method, limits, args.model)
     elapsed = time.perf_counter() - start
@@ -177,7 +220,9 @@ def cmd_reconstruct(args) -> None:
     print(f"{args.method}: {points} points ({rec.valid.mean():.1%} of pixels) in {elapsed * 1000:.1f} ms -> {out}")
     truth = _truth_beside(args.images, args.truth)
     if truth is not None and truth.shape != rec.depth_mm.shape:
-        raise io.InputError(f"ground truth is {truth.shape[1]}x{truth.shape[0]}, the images {images.shape[2]}x{images.shape[1]}")
+        raise io.InputError(
+            f"ground truth is {truth.shape[1]}x{truth.shape[0]}, the images {images.shape[2]}x{images.shape[1]}"
+        )
     written = write_pictures(out, rec.depth_mm, rec.xyz_mm, truth, method=args.method.upper())
     print("pictures: " + ", ".join(str(p) for p in written))
 
@@ -186,20 +231,26 @@ def cmd_evaluate(args) -> None:
     pred = io.read_depth(args.prediction)
     truth = io.read_depth(args.truth)
     if pred.shape != truth.shape:
-        raise io.InputError(f"prediction is {pred.shape[1]}x{pred.shape[0]}, truth is {truth.shape[1]}x{truth.shape[0]}")
+        raise io.InputError(
+            f"prediction is {pred.shape[1]}x{pred.shape[0]}, truth is {truth.shape[1]}x{truth.shape[0]}"
+        )
     valid = None
     if args.valid:
         mask = io.read_image(args.valid)
         if mask.shape != truth.shape:
-            raise io.InputError(f"valid mask {args.valid} is {mask.shape[1]}x{mask.shape[0]}, truth is {truth.shape[1]}x{truth.shape[0]}")
+            raise io.InputError(
+                f"valid mask {args.valid} is {mask.shape[1]}x{mask.shape[0]}, "
+                f"truth is {truth.shape[1]}x{truth.shape[0]}"
+            )
         valid = mask > 0
     e = depth_errors(pred, truth, valid)
     print(f"RMSE {e.rmse_mm:.4f} mm   MRE {e.mre:.3e}   coverage {e.coverage:.1%}   pixels {e.pixels}")
     if args.pictures:
         out = Path(args.pictures)
         out.mkdir(parents=True, exist_ok=True)
-        written = write_pictures(out, pred, None, truth if valid is None else np.where(valid, truth, np.nan),
-                                 method="prediction")
+        written = write_pictures(
+            out, pred, None, truth if valid is None else np.where(valid, truth, np.nan), method="prediction"
+        )
         print("pictures: " + ", ".join(str(p) for p in written))
 
 
@@ -215,7 +266,9 @@ def cmd_demo(args) -> None:
     print("  fit RMSE per plane (um): " + ", ".join(f"{r * 1000:.1f}" for r in residuals))
     psp, decoder = PspReconstructor(calibration), CompositeDecoder(calibration, SURFACE_DEPTH_MM)
     rows, written = [], []
-    for name, scene, seed in tqdm(list(held_out_scenes(rig, args.scenes, args.seed + 1000)), desc="scenes", disable=None):
+    for name, scene, seed in tqdm(
+        list(held_out_scenes(rig, args.scenes, args.seed + 1000)), desc="scenes", disable=None
+    ):
         capture = render(rig, scene, patterns, np.random.default_rng(seed))
         start = time.perf_counter()
         multi = psp(capture.images)
@@ -229,27 +282,38 @@ def cmd_demo(args) -> None:
         for method, rec in (("psp", multi), ("ftp", single)):
             io.write_depth(folder, f"depth_{method}_mm", rec.depth_mm)
         written = write_pictures(folder, multi.depth_mm, multi.xyz_mm, truth, "psp", "PSP", {"FTP": single.depth_mm})
-        cv2.imwrite(str(folder / "depth_ftp.png"), pictures.depth_picture(single.depth_mm, *pictures.depth_range(truth), "FTP depth"))
+        cv2.imwrite(
+            str(folder / "depth_ftp.png"),
+            pictures.depth_picture(single.depth_mm, *pictures.depth_range(truth), "FTP depth"),
+        )
         cv2.imwrite(str(folder / "error_ftp.png"), pictures.error_picture(single.depth_mm, truth, title="FTP - truth"))
         cv2.imwrite(str(folder / "depth_truth.png"), pictures.depth_picture(truth, title="ground truth"))
         written += [folder / n for n in ("depth_ftp.png", "error_ftp.png", "depth_truth.png")]
         io.write_ply(folder / "points_psp.ply", multi.xyz_mm / 1000.0, capture.images[0])
         cv2.imwrite(str(folder / "input.png"), capture.images[-patterns.steps])
         rows.append((name, result, ftp, psp_ms))
-    print(f"\nheld-out scenes, default rig (noise {rig.noise_sigma} counts, blur {rig.blur_sigma_px} px); "
-          "RMSE over pixels valid in both prediction and truth")
-    print(f"{'scene':18} {'PSP RMSE mm':>11} {'noise-limit':>11} {'ratio':>6} {'orders':>6} {'cover':>6} "
-          f"{'FTP RMSE mm':>11} {'FTP orders':>10} {'PSP ms':>7}")
+    print(
+        f"\nheld-out scenes, default rig (noise {rig.noise_sigma} counts, blur {rig.blur_sigma_px} px); "
+        "RMSE over pixels valid in both prediction and truth"
+    )
+    print(
+        f"{'scene':18} {'PSP RMSE mm':>11} {'noise-limit':>11} {'ratio':>6} {'orders':>6} {'cover':>6} "
+        f"{'FTP RMSE mm':>11} {'FTP orders':>10} {'PSP ms':>7}"
+    )
     for name, r, f, ms in rows:
         e = r.errors
-        print(f"{name:18} {e.rmse_mm:11.4f} {r.noise_limited_rmse_mm:11.4f} {e.rmse_mm / r.noise_limited_rmse_mm:6.2f} "
-              f"{e.order_errors:6d} {e.coverage:6.1%} {f.rmse_mm:11.3f} {f.order_errors:10d} {ms:7.1f}")
+        print(
+            f"{name:18} {e.rmse_mm:11.4f} {r.noise_limited_rmse_mm:11.4f} {e.rmse_mm / r.noise_limited_rmse_mm:6.2f} "
+            f"{e.order_errors:6d} {e.coverage:6.1%} {f.rmse_mm:11.3f} {f.order_errors:10d} {ms:7.1f}"
+        )
     print(f"\nwrote depth (.npy/.tiff), point clouds (.ply, metres) and pictures to {out}:")
     print("  " + ", ".join(p.name for p in written) + " in each scene's folder")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="fpp", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="fpp", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("patterns", help="every pattern of the set as a PNG at the projector's resolution")
@@ -258,10 +322,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_patterns)
 
     p = sub.add_parser("simulate", help="render fringe images of a scene with the simulated rig")
-    p.add_argument("--scene", default="sculpture",
-                   help=f"{', '.join(SCENE_KINDS)}, or a height map file (.npy, 16-bit PNG, TIFF; mm)")
+    p.add_argument(
+        "--scene",
+        default="sculpture",
+        help=f"{', '.join(SCENE_KINDS)}, or a height map file (.npy, 16-bit PNG, TIFF; mm)",
+    )
     p.add_argument("--map-kind", choices=("height", "depth"), default="height", help="what a scene file holds")
-    p.add_argument("--depth", type=float, default=None, help="plane depth in mm (scene 'plane'; for a family: its background's depth at the image centre)")
+    p.add_argument(
+        "--depth",
+        type=float,
+        default=None,
+        help="plane depth in mm (scene 'plane'; for a family: its background's depth at the image centre)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--count", type=int, default=1, help="captures with seeds seed, seed+1, ...")
     p.add_argument("--noise", type=float, default=Rig.noise_sigma, help="camera noise, counts")
@@ -271,7 +343,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("calibrate", help="fit the phase-to-depth model from captures of planes")
     p.add_argument("planes", nargs="+", metavar="FOLDER:DEPTH_MM", help="fringe images of a plane square to the camera")
-    p.add_argument("--sensor", required=True, help="YAML with 'camera' intrinsics and 'patterns' (fpp simulate writes one)")
+    p.add_argument(
+        "--sensor", required=True, help="YAML with 'camera' intrinsics and 'patterns' (fpp simulate writes one)"
+    )
     p.add_argument("--reference-depth", type=float, default=None, help="background depth in mm (default: median plane)")
     p.add_argument("--out", default="calibration.yaml")
     p.set_defaults(func=cmd_calibrate)
@@ -279,18 +353,33 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reconstruct", help="fringe images -> depth, point cloud, picture")
     p.add_argument("images", nargs="+", help="a folder of fringe_*.png/.tif, or the image files in projection order")
     p.add_argument("--calibration", required=True)
-    p.add_argument("--method", choices=("psp", "ftp", "cnn"), default="psp",
-                   help="psp: all images; ftp and cnn: one image (the calibration's single-shot frame: the "
-                        "composite, or the paper's first image of the highest frequency; cnn runs the "
-                        "single-shot network as cnn_depth does)")
+    p.add_argument(
+        "--method",
+        choices=("psp", "ftp", "cnn"),
+        default="psp",
+        help="psp: all images; ftp and cnn: one image (the calibration's single-shot frame: the "
+        "composite, or the paper's first image of the highest frequency; cnn runs the "
+        "single-shot network as cnn_depth does)",
+    )
     p.add_argument("--model", help="with --method cnn: an ONNX model with its card (default: the shipped one)")
-    p.add_argument("--max-depth-noise", type=float, default=QualityLimits.max_depth_noise_mm,
-                   help="psp: keep pixels whose expected depth noise is at most this, mm")
-    p.add_argument("--min-modulation", type=float, default=QualityLimits.min_modulation,
-                   help="ftp: keep pixels whose fringe lobe is at least this fraction of full scale")
+    p.add_argument(
+        "--max-depth-noise",
+        type=float,
+        default=QualityLimits.max_depth_noise_mm,
+        help="psp: keep pixels whose expected depth noise is at most this, mm",
+    )
+    p.add_argument(
+        "--min-modulation",
+        type=float,
+        default=QualityLimits.min_modulation,
+        help="ftp: keep pixels whose fringe lobe is at least this fraction of full scale",
+    )
     p.add_argument("--max-depth-step", type=float, default=QualityLimits.max_depth_step_mm)
-    p.add_argument("--truth", help="ground-truth depth in mm (.npy/.tiff) for error.png (default: the folder's "
-                                   "depth_gt_mm.npy, as fpp simulate writes it)")
+    p.add_argument(
+        "--truth",
+        help="ground-truth depth in mm (.npy/.tiff) for error.png (default: the folder's "
+        "depth_gt_mm.npy, as fpp simulate writes it)",
+    )
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_reconstruct)
 

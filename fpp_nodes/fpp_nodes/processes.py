@@ -2,6 +2,7 @@
 tests. Each process runs in its own session, so a signal reaches all it started, with its output in a
 log file; it is stopped with SIGINT (nodes print their counts and shut down cleanly), SIGKILL after a
 timeout."""
+
 from __future__ import annotations
 
 import os
@@ -30,8 +31,12 @@ class NodeProcesses:
 
     def __init__(self, domain_id: int, logs: Path, env: dict | None = None):
         self.domain_id, self.logs_dir, self.procs = domain_id, Path(logs), []
-        self.env = dict(os.environ if env is None else env, ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED="1",
-                        RCUTILS_LOGGING_BUFFERED_STREAM="0")
+        self.env = dict(
+            os.environ if env is None else env,
+            ROS_DOMAIN_ID=str(domain_id),
+            PYTHONUNBUFFERED="1",
+            RCUTILS_LOGGING_BUFFERED_STREAM="0",
+        )
 
     def start(self, executable: str, *ros_args: str) -> subprocess.Popen:
         log = open(self.logs_dir / f"{executable}-{len(self.procs)}.log", "w")

@@ -8,6 +8,7 @@ depths; back-projection to XYZ; and the versioned calibration file that holds th
 Here z is the depth along the camera's optical axis, in millimetres, (u, v) the camera pixel
 (column, row) and phi the unwrapped phase of the highest frequency.
 """
+
 from __future__ import annotations
 
 from dataclasses import astuple, dataclass, replace
@@ -158,11 +159,15 @@ class CameraIntrinsics:
     def rays(self) -> tuple[np.ndarray, np.ndarray]:
         """x/z and y/z of every pixel's viewing ray (optical frame: x right, y down, z forward)."""
         u, v = pixel_grid(self.shape)
-        return np.broadcast_to((u - self.cx) / self.fx, self.shape), np.broadcast_to((v - self.cy) / self.fy, self.shape)
+        return np.broadcast_to((u - self.cx) / self.fx, self.shape), np.broadcast_to(
+            (v - self.cy) / self.fy, self.shape
+        )
 
     def to_dict(self) -> dict:
-        return {k: (int(getattr(self, k)) if k in ("width", "height") else float(getattr(self, k)))
-                for k in ("width", "height", "fx", "fy", "cx", "cy")}
+        return {
+            k: (int(getattr(self, k)) if k in ("width", "height") else float(getattr(self, k)))
+            for k in ("width", "height", "fx", "fy", "cx", "cy")
+        }
 
 
 def back_project(depth: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
@@ -194,12 +199,16 @@ class Calibration:
 
     def __post_init__(self):
         if (self.patterns.single_shot == "composite") != (self.code_model is not None):
-            raise CalibrationError("a calibration has a code model exactly when its patterns have the composite "
-                                   f"single-shot frame (single_shot is {self.patterns.single_shot!r})")
+            raise CalibrationError(
+                "a calibration has a code model exactly when its patterns have the composite "
+                f"single-shot frame (single_shot is {self.patterns.single_shot!r})"
+            )
 
-    def with_papers_single_shot(self) -> "Calibration":
+    def with_papers_single_shot(self) -> Calibration:
         """The same rig showing the paper's single-shot frame instead of the composite: 16 frames."""
-        return Calibration(self.camera, self.model, replace(self.patterns, single_shot="paper"), self.reference_depth_mm)
+        return Calibration(
+            self.camera, self.model, replace(self.patterns, single_shot="paper"), self.reference_depth_mm
+        )
 
     def code_row_phase_at_depth(self, depth, u, v):
         """The code grating's row phase a pixel sees at a depth (composite calibrations only)."""
@@ -214,18 +223,23 @@ class Calibration:
             "model": {"terms": list(TERMS), "c": self.model.c.tolist(), "d": self.model.d.tolist()},
             "patterns": self.patterns.to_dict(),
             "reference_depth_mm": float(self.reference_depth_mm),
-            **({"code_model": {"c": self.code_model.c.tolist(), "d": self.code_model.d.tolist()}}
-               if self.code_model is not None else {}),
+            **(
+                {"code_model": {"c": self.code_model.c.tolist(), "d": self.code_model.d.tolist()}}
+                if self.code_model is not None
+                else {}
+            ),
         }
 
     @classmethod
-    def from_dict(cls, d) -> "Calibration":
+    def from_dict(cls, d) -> Calibration:
         if not isinstance(d, dict):
             raise CalibrationError("calibration file is not a YAML mapping")
         if d.get("format") != FORMAT_NAME:
             raise CalibrationError(f"not a calibration file: 'format' is {d.get('format')!r}, expected {FORMAT_NAME!r}")
         if d.get("version") != FORMAT_VERSION:
-            raise CalibrationError(f"calibration version {d.get('version')!r} is not supported (this build reads {FORMAT_VERSION})")
+            raise CalibrationError(
+                f"calibration version {d.get('version')!r} is not supported (this build reads {FORMAT_VERSION})"
+            )
         missing = [k for k in ("camera", "model", "patterns", "reference_depth_mm") if k not in d]
         if missing:
             raise CalibrationError(f"calibration is missing {', '.join(missing)}")
@@ -247,7 +261,7 @@ class Calibration:
         return yaml.safe_dump(self.to_dict(), sort_keys=False)
 
     @classmethod
-    def from_yaml(cls, text: str) -> "Calibration":
+    def from_yaml(cls, text: str) -> Calibration:
         try:
             return cls.from_dict(yaml.safe_load(text))
         except yaml.YAMLError as e:
@@ -257,7 +271,7 @@ class Calibration:
         Path(path).write_text(self.to_yaml())
 
     @classmethod
-    def load(cls, path) -> "Calibration":
+    def load(cls, path) -> Calibration:
         try:
             text = Path(path).read_text()
         except OSError as e:

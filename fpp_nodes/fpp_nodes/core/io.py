@@ -1,11 +1,11 @@
 """Files people bring and take away: fringe image stacks, depth maps, point clouds, pictures."""
+
 from __future__ import annotations
 
 from pathlib import Path
 
 import cv2
 import numpy as np
-
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
 
@@ -19,7 +19,9 @@ def image_paths(inputs) -> list[Path]:
     paths: list[Path] = []
     for item in map(Path, inputs):
         if item.is_dir():
-            found = sorted(p for p in item.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.stem.startswith("fringe"))
+            found = sorted(
+                p for p in item.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.stem.startswith("fringe")
+            )
             if not found:
                 raise InputError(f"{item} holds no fringe_*.png / .tif images")
             paths += found
@@ -46,8 +48,10 @@ def read_stack(paths) -> np.ndarray:
     images = [read_image(p) for p in paths]
     for p, img in zip(paths, images):
         if img.shape != images[0].shape or img.dtype != images[0].dtype:
-            raise InputError(f"{p} is {img.shape[1]}x{img.shape[0]} {img.dtype}, but {paths[0]} is "
-                             f"{images[0].shape[1]}x{images[0].shape[0]} {images[0].dtype}")
+            raise InputError(
+                f"{p} is {img.shape[1]}x{img.shape[0]} {img.dtype}, but {paths[0]} is "
+                f"{images[0].shape[1]}x{images[0].shape[0]} {images[0].dtype}"
+            )
     return np.stack(images)
 
 
@@ -98,8 +102,13 @@ def write_ply(path, xyz: np.ndarray, grey: np.ndarray | None = None) -> int:
         g = np.asarray(grey, np.float64)
         g8 = np.clip(g / max(float(g.max()), 1e-9) * 255, 0, 255).astype(np.uint8).reshape(-1)
         rows["red"] = rows["green"] = rows["blue"] = g8
-    header = ["ply", "format binary_little_endian 1.0", f"obj_info num_cols {w}", f"obj_info num_rows {h}",
-              f"element vertex {h * w}"]
+    header = [
+        "ply",
+        "format binary_little_endian 1.0",
+        f"obj_info num_cols {w}",
+        f"obj_info num_rows {h}",
+        f"element vertex {h * w}",
+    ]
     header += [f"property {'float' if t == '<f4' else 'uchar'} {n}" for n, t in fields]
     header.append("end_header")
     with open(path, "wb") as f:

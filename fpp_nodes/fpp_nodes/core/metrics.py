@@ -3,6 +3,7 @@
 RMSE (mm) = sqrt(mean((z_pred - z_true)^2))
 MRE       = mean(|z_pred - z_true| / |z_true|)      (dimensionless, relative to the true depth)
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -19,8 +20,13 @@ class DepthErrors:
     pixels: int
 
     def as_row(self) -> dict:
-        return {"rmse_mm": self.rmse_mm, "mre": self.mre, "coverage": self.coverage,
-                "order_errors": self.order_errors, "pixels": self.pixels}
+        return {
+            "rmse_mm": self.rmse_mm,
+            "mre": self.mre,
+            "coverage": self.coverage,
+            "order_errors": self.order_errors,
+            "pixels": self.pixels,
+        }
 
 
 class ErrorTotals:

@@ -3,6 +3,7 @@
 The card (<model>.yaml, written by training.export) says what the model expects; loading checks the
 file against the card's sha256, and every frame against the card's camera size.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -44,6 +45,7 @@ def paper_model_path() -> str:
 class DepthModel:
     def __init__(self, path, providers=("CPUExecutionProvider",), threads: int = 2):
         import onnxruntime as ort
+
         path = Path(path)
         card_path = path.with_suffix(".yaml")
         if not path.is_file():
@@ -60,7 +62,9 @@ class DepthModel:
             raise ModelError(f"model card {card_path} is malformed ({type(e).__name__}: {e})") from None
         actual = hashlib.sha256(path.read_bytes()).hexdigest()
         if actual != expected_sha:
-            raise ModelError(f"model {path} does not match its card: sha256 {actual[:12]}... != {str(expected_sha)[:12]}...")
+            raise ModelError(
+                f"model {path} does not match its card: sha256 {actual[:12]}... != {str(expected_sha)[:12]}..."
+            )
         try:
             self.reads = PatternSet.from_dict(self.card["patterns"]).single_shot  # which single-shot frame
         except (KeyError, TypeError, PatternError) as e:
@@ -82,11 +86,16 @@ class DepthModel:
             try:
                 calibration = Calibration.from_dict(self.card["calibration"])
                 self.min_confidence = float(self.card["decoding"]["min_confidence"])
-                self.decoder = (PhaseOrderDecoder(calibration) if self.output == "fringe_order" else
-                                CompositeDecoder(calibration, tuple(self.card["decoding"]["depth_range_mm"])))
+                self.decoder = (
+                    PhaseOrderDecoder(calibration)
+                    if self.output == "fringe_order"
+                    else CompositeDecoder(calibration, tuple(self.card["decoding"]["depth_range_mm"]))
+                )
             except (KeyError, TypeError, ValueError) as e:  # CalibrationError and PhaseError are ValueErrors
-                raise ModelError(f"model card {card_path} lacks the calibration or decoding of a phase-aware "
-                                 f"model ({type(e).__name__}: {e})") from None
+                raise ModelError(
+                    f"model card {card_path} lacks the calibration or decoding of a phase-aware "
+                    f"model ({type(e).__name__}: {e})"
+                ) from None
             if self.downsample != 1:
                 raise ModelError(f"model card {card_path}: a phase-aware model runs at full resolution")
 
@@ -94,13 +103,17 @@ class DepthModel:
         """A model reads one kind of single-shot frame (its card's pattern set): say so if the rig shows
         another."""
         if self.reads != patterns.single_shot:
-            raise ModelError(f"the model reads the {self.reads!r} single-shot frame but the calibration's pattern set "
-                             f"has {patterns.single_shot!r} (set its patterns' single_shot, or use a model trained for it)")
+            raise ModelError(
+                f"the model reads the {self.reads!r} single-shot frame but the calibration's pattern set "
+                f"has {patterns.single_shot!r} (set its patterns' single_shot, or use a model trained for it)"
+            )
 
     def check(self, image: np.ndarray) -> None:
         if image.ndim != 2 or (image.shape[1], image.shape[0]) != self.size:
-            raise ModelError(f"the model takes {self.size[0]}x{self.size[1]} images (its card), got "
-                             f"{'x'.join(map(str, image.shape[::-1]))}")
+            raise ModelError(
+                f"the model takes {self.size[0]}x{self.size[1]} images (its card), got "
+                f"{'x'.join(map(str, image.shape[::-1]))}"
+            )
         if image.dtype not in (np.uint8, np.uint16):
             raise ModelError(f"the model takes mono8 or mono16 images, got {image.dtype}")
 
@@ -153,12 +166,14 @@ class PhaseOrderDecoder:
     def __init__(self, calibration: Calibration):
         cam = calibration.camera
         u, v = pixel_grid(cam.shape)
-        self.reference = np.broadcast_to(calibration.model.phase_at_depth(calibration.reference_depth_mm, u, v),
-                                         cam.shape).astype(np.float32)
+        self.reference = np.broadcast_to(
+            calibration.model.phase_at_depth(calibration.reference_depth_mm, u, v), cam.shape
+        ).astype(np.float32)
         self.terms = depth_terms(calibration)
 
-    def __call__(self, out: np.ndarray, min_confidence: float,
-                 fringes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(
+        self, out: np.ndarray, min_confidence: float, fringes: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         num, den, orders, log_sigma = (np.ascontiguousarray(c, np.float32) for c in out)
         wrapped = cv2.phase(den, num)  # atan2(num, den) in [0, 2 pi)
         coarse = self.reference + np.float32(2 * np.pi) * orders
@@ -172,9 +187,12 @@ class PhaseOrderDecoder:
         return depth, confidence
 
 
-def trusted_single_shot(depth: np.ndarray, image: np.ndarray,
-                        max_depth_step_mm: float = QualityLimits.max_depth_step_mm,
-                        fringes: np.ndarray | None = None) -> np.ndarray:
+def trusted_single_shot(
+    depth: np.ndarray,
+    image: np.ndarray,
+    max_depth_step_mm: float = QualityLimits.max_depth_step_mm,
+    fringes: np.ndarray | None = None,
+) -> np.ndarray:
     """Set a network's depth to NaN (in place) where the image shows no usable fringes, and where it
     smears a depth edge: a pixel whose depth differs from a neighbour's by more than max_depth_step_mm,
     the multi-shot path's flying-pixel rule. A network smooths a depth step across a few pixels."""
@@ -183,8 +201,12 @@ def trusted_single_shot(depth: np.ndarray, image: np.ndarray,
     return depth
 
 
-def fringe_mask(image: np.ndarray, min_modulation: float = MIN_MODULATION, window: int = CONTRAST_WINDOW,
-                modulation: np.ndarray | None = None) -> np.ndarray:
+def fringe_mask(
+    image: np.ndarray,
+    min_modulation: float = MIN_MODULATION,
+    window: int = CONTRAST_WINDOW,
+    modulation: np.ndarray | None = None,
+) -> np.ndarray:
     """Pixels of a single fringe image whose depth a network can know: the fringe modulation is at
     least min_modulation of full scale, and no pixel near it is saturated (clipped fringes). The
     modulation is the phase-aware network's own estimate of the multi-shot B (modulation, full-scale

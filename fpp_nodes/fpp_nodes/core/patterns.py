@@ -17,12 +17,12 @@ projector row y at almost the same place at every depth (the baseline is horizon
 known from the calibration, psi tells the carrier's fringe order modulo K. K orders span the whole
 working range, so the order is absolute.
 """
+
 from __future__ import annotations
 
-from dataclasses import dataclass, asdict
+from dataclasses import asdict, dataclass
 
 import numpy as np
-
 
 SINGLE_SHOT_KINDS = ("composite", "paper")
 # The code's two design numbers (measured in the README, "The composite pattern"): a camera pixel sees a
@@ -119,7 +119,7 @@ class PatternSet:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "PatternSet":
+    def from_dict(cls, d: dict) -> PatternSet:
         """A set written before the composite existed has no single_shot: it is the paper's."""
         try:
             return cls(**{"single_shot": "paper", **d})
@@ -146,13 +146,16 @@ def validate_pattern_set(p: PatternSet) -> None:
     if 2 * p.frequencies[-1] > p.period_axis_length:
         raise PatternError(
             f"{p.frequencies[-1]} fringes need at least {2 * p.frequencies[-1]} projector pixels, "
-            f"the pattern has {p.period_axis_length}")
+            f"the pattern has {p.period_axis_length}"
+        )
     if not p.gamma > 0:
         raise PatternError(f"gamma must be > 0, got {p.gamma}")
     if p.single_shot not in SINGLE_SHOT_KINDS:
         raise PatternError(f"single_shot must be one of {', '.join(SINGLE_SHOT_KINDS)}, got {p.single_shot!r}")
     if p.single_shot == "composite" and p.orientation != "vertical":
-        raise PatternError("the composite single-shot pattern needs vertical fringes (its code runs across the baseline)")
+        raise PatternError(
+            "the composite single-shot pattern needs vertical fringes (its code runs across the baseline)"
+        )
 
 
 def fringe_value(p: PatternSet, frequency: int, step: int, x: np.ndarray) -> np.ndarray:
@@ -174,8 +177,10 @@ def composite_pattern(p: PatternSet) -> np.ndarray:
     fx, fy = p.code_frequencies
     x = np.arange(p.width, dtype=np.float64)[None, :]
     y = np.arange(p.height, dtype=np.float64)[:, None]
-    radiance = 0.5 + 0.5 * COMPOSITE_AMPLITUDE * (np.cos(2.0 * np.pi * p.frequencies[-1] * x / p.width) +
-                                                  np.cos(2.0 * np.pi * (fx * x / p.width + fy * y / p.height)))
+    radiance = 0.5 + 0.5 * COMPOSITE_AMPLITUDE * (
+        np.cos(2.0 * np.pi * p.frequencies[-1] * x / p.width)
+        + np.cos(2.0 * np.pi * (fx * x / p.width + fy * y / p.height))
+    )
     return np.round(p.max_value * radiance ** (1.0 / p.gamma)).astype(pattern_dtype(p))
 
 

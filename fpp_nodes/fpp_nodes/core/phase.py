@@ -4,6 +4,7 @@ equation (2)), and Fourier-transform profilometry (Takeda) with spatial unwrappi
 Phases are in radians. Wrapped phases lie in [0, 2 pi] (angle), as in the paper.
 Images are modelled as I_j = A + B cos(phi + delta_j), delta_j = 2 pi j / N.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -154,8 +155,10 @@ def unwrap_spatial(wrapped: np.ndarray) -> np.ndarray:
     """
     psi = np.asarray(wrapped, np.float64)
     h, w = psi.shape
+
     def wrap(a):
         return (a + np.pi) % TWO_PI - np.pi
+
     dx = np.zeros_like(psi)
     dy = np.zeros_like(psi)
     dx[:, :-1] = wrap(np.diff(psi, axis=1))
@@ -178,7 +181,9 @@ def unwrap_spatial(wrapped: np.ndarray) -> np.ndarray:
     return psi + TWO_PI * np.rint((smooth - psi) / TWO_PI)
 
 
-def ftp_wrapped_phase(image: np.ndarray, vertical_fringes: bool = True, band: float = 0.5, carrier: float | None = None):
+def ftp_wrapped_phase(
+    image: np.ndarray, vertical_fringes: bool = True, band: float = 0.5, carrier: float | None = None
+):
     """Takeda's Fourier-transform profilometry on one fringe image.
 
     Keeps the spectral lobe around the positive carrier (found as the strongest peak away from DC

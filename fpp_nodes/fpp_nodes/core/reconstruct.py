@@ -1,5 +1,6 @@
 """Fringe images to depth and XYZ: the multi-shot path (phase shifting at every frequency, temporal
 unwrapping, rational model) and the single-shot FTP baseline. Pure functions of arrays."""
+
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
@@ -10,8 +11,17 @@ import numpy as np
 
 from .calibration import Calibration, back_project, pixel_grid
 from .patterns import CODE_ORDERS, PatternSet
-from .phase import (TWO_PI, PhaseError, ftp_code_phase, ftp_wrapped_phase, phase_and_modulation, phase_noise,
-                    unwrap_spatial, unwrap_temporal, wrapped_phase)
+from .phase import (
+    TWO_PI,
+    PhaseError,
+    ftp_code_phase,
+    ftp_wrapped_phase,
+    phase_and_modulation,
+    phase_noise,
+    unwrap_spatial,
+    unwrap_temporal,
+    wrapped_phase,
+)
 
 
 @dataclass
@@ -60,8 +70,10 @@ def drop_flying_pixels(depth: np.ndarray, max_step: float) -> np.ndarray:
     jump_x = cv2.compare(cv2.absdiff(depth[:, 1:], depth[:, :-1]), max_step, cv2.CMP_GT)  # NaN: no jump
     jump_y = cv2.compare(cv2.absdiff(depth[1:, :], depth[:-1, :]), max_step, cv2.CMP_GT)
     jumps = np.zeros(depth.shape, np.uint8)
-    for jump, one, other in ((jump_x, (slice(None), slice(1, None)), (slice(None), slice(None, -1))),
-                             (jump_y, (slice(1, None), slice(None)), (slice(None, -1), slice(None)))):
+    for jump, one, other in (
+        (jump_x, (slice(None), slice(1, None)), (slice(None), slice(None, -1))),
+        (jump_y, (slice(1, None), slice(None)), (slice(None, -1), slice(None))),
+    ):
         cv2.bitwise_or(jumps[one], jump, dst=jumps[one])
         cv2.bitwise_or(jumps[other], jump, dst=jumps[other])
     return np.isfinite(depth) & (jumps == 0)
@@ -74,16 +86,22 @@ def multi_frequency_phase(images: np.ndarray, patterns: PatternSet, limits: Qual
     and its phase noise (rad, phase.phase_noise)."""
     n = patterns.steps
     if images.ndim != 3 or images.shape[0] != patterns.count:
-        raise PhaseError(f"expected {patterns.count} images ({_described(patterns)}), got an array shaped {images.shape}")
-    wrapped = [wrapped_phase(images[i * n:(i + 1) * n]) for i in range(len(patterns.frequencies) - 1)]
+        raise PhaseError(
+            f"expected {patterns.count} images ({_described(patterns)}), got an array shaped {images.shape}"
+        )
+    wrapped = [wrapped_phase(images[i * n : (i + 1) * n]) for i in range(len(patterns.frequencies) - 1)]
     top = images[patterns.top_frequency_frames]
     top_phase, modulation = phase_and_modulation(top)
     wrapped.append(top_phase)
     phase, valid = unwrap_temporal(wrapped, patterns.frequencies, limits.max_order_residual)
     valid &= unsaturated(top)
     noise = phase_noise(top, modulation)
-    return (phase.astype(np.float32, copy=False), valid, modulation.astype(np.float32, copy=False),
-            noise.astype(np.float32, copy=False))  # float64 images: the sensor's outputs are float32 all the same
+    return (
+        phase.astype(np.float32, copy=False),
+        valid,
+        modulation.astype(np.float32, copy=False),
+        noise.astype(np.float32, copy=False),
+    )  # float64 images: the sensor's outputs are float32 all the same
 
 
 def unsaturated(images: np.ndarray) -> np.ndarray:
@@ -119,8 +137,9 @@ def depth_terms(calibration: Calibration) -> list[np.ndarray]:
     depth = (ca + cb phi) / (da + db phi): computed once per calibration, not per image."""
     cam = calibration.camera
     u, v = pixel_grid(cam.shape)
-    return [np.ascontiguousarray(np.broadcast_to(t, cam.shape), np.float32)
-            for t in calibration.model.linear_in_phase(u, v)]
+    return [
+        np.ascontiguousarray(np.broadcast_to(t, cam.shape), np.float32) for t in calibration.model.linear_in_phase(u, v)
+    ]
 
 
 class PspReconstructor:
@@ -133,8 +152,10 @@ class PspReconstructor:
 
     def __init__(self, calibration: Calibration, limits: QualityLimits = QualityLimits(), threads: int = 2):
         if calibration.patterns.steps < 4:
-            raise PhaseError(f"the multi-shot path estimates each pixel's noise from the N-step fit: it needs N >= 4 "
-                             f"phase-shift steps, the calibration's pattern set has {calibration.patterns.steps}")
+            raise PhaseError(
+                f"the multi-shot path estimates each pixel's noise from the N-step fit: it needs N >= 4 "
+                f"phase-shift steps, the calibration's pattern set has {calibration.patterns.steps}"
+            )
         self.calibration = calibration
         self.limits = limits
         self._ca, self._cb, self._da, self._db = depth_terms(calibration)
@@ -148,8 +169,10 @@ class PspReconstructor:
         cal = self.calibration
         expected = (cal.patterns.count, cal.camera.height, cal.camera.width)
         if images.shape != expected:
-            raise PhaseError(f"expected {expected[0]} images of {expected[2]}x{expected[1]} "
-                             f"({_described(cal.patterns)}), got an array shaped {images.shape}")
+            raise PhaseError(
+                f"expected {expected[0]} images of {expected[2]}x{expected[1]} "
+                f"({_described(cal.patterns)}), got an array shaped {images.shape}"
+            )
 
     def __call__(self, images: np.ndarray) -> Reconstruction:
         images = np.asarray(images)
@@ -158,7 +181,9 @@ class PspReconstructor:
             depth, valid, noise, phase, modulation = self._band(images, 0, images.shape[1])
         else:  # each band writes its rows of the outputs
             shape = images.shape[1:]
-            depth, valid, noise, phase, modulation = outputs = [np.empty(shape, t) for t in (np.float32, bool, *[np.float32] * 3)]
+            depth, valid, noise, phase, modulation = outputs = [
+                np.empty(shape, t) for t in (np.float32, bool, *[np.float32] * 3)
+            ]
             for band in [self._pool.submit(self._band, images, *rows, outputs) for rows in self._bands]:
                 band.result()
         return Reconstruction(depth, back_project(depth, self.calibration.camera), valid, noise, phase, modulation)
@@ -168,7 +193,9 @@ class PspReconstructor:
         BAND_HALO more on each side; written into those rows of outputs where given."""
         lo, hi = max(0, first - BAND_HALO), min(images.shape[1], last + BAND_HALO)
         rows = slice(lo, hi)
-        phase, valid, modulation, noise_rad = multi_frequency_phase(images[:, rows], self.calibration.patterns, self.limits)
+        phase, valid, modulation, noise_rad = multi_frequency_phase(
+            images[:, rows], self.calibration.patterns, self.limits
+        )
         depth, noise_mm = self.depth(phase, noise_rad, rows)
         valid &= noise_mm <= self.limits.max_depth_noise_mm
         depth, valid = trusted_depth(depth, valid, self.limits.max_depth_step_mm)
@@ -179,7 +206,9 @@ class PspReconstructor:
             target[first:last] = result
         return results
 
-    def depth(self, phase: np.ndarray, noise_rad: np.ndarray, rows: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+    def depth(
+        self, phase: np.ndarray, noise_rad: np.ndarray, rows: slice = slice(None)
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The rational model at these rows: depth = (ca + cb phi) / (da + db phi), and the depth noise
         (mm) a phase noise causes, |dz/dphi| noise_rad, dz/dphi = (cb da - ca db) / (da + db phi)^2."""
         num = cv2.multiply(self._cb[rows], phase)
@@ -230,8 +259,10 @@ class CompositeDecoder:
         ends = [np.broadcast_to(calibration.model.phase_at_depth(z, u, v), cam.shape) for z in depth_range_mm]
         span = np.abs(ends[1] - ends[0]) / TWO_PI
         if span.max() > CODE_ORDERS - 1:
-            raise PhaseError(f"the working range {depth_range_mm[0]:g}-{depth_range_mm[1]:g} mm spans up to {span.max():.1f} "
-                             f"fringe orders; the composite's code tells {CODE_ORDERS} apart")
+            raise PhaseError(
+                f"the working range {depth_range_mm[0]:g}-{depth_range_mm[1]:g} mm spans up to {span.max():.1f} "
+                f"fringe orders; the composite's code tells {CODE_ORDERS} apart"
+            )
         lowest = np.minimum(ends[0], ends[1]) - (CODE_ORDERS - span) / 2 * TWO_PI
         # the row phase along the window, a straight line in the carrier phase per pixel (least squares)
         t = np.arange(CODE_ORDERS + 1) - CODE_ORDERS / 2
@@ -239,7 +270,9 @@ class CompositeDecoder:
         slope = sum(k * r for k, r in zip(t, rows)) / (np.sum(t * t) * TWO_PI)
         middle = lowest + np.pi * CODE_ORDERS
         intercept = sum(rows) / len(rows) - slope * middle
-        self.row_fit_error = max(float(np.abs(intercept + slope * (middle + TWO_PI * k) - r).max()) for k, r in zip(t, rows))
+        self.row_fit_error = max(
+            float(np.abs(intercept + slope * (middle + TWO_PI * k) - r).max()) for k, r in zip(t, rows)
+        )
         self.lowest, self.row_intercept = lowest.astype(np.float32), intercept.astype(np.float32)
         self.row_rate = (slope + 1 / CODE_ORDERS).astype(np.float32)  # d(predicted code) / d(carrier phase)
         self.spacing = (TWO_PI * self.row_rate).astype(np.float32)  # the code from one order to the next
@@ -294,8 +327,9 @@ class CompositeDecoder:
                 best_j[better], best_miss[better] = j[better], miss[better]
         return lowest + two_pi * best_j
 
-    def __call__(self, out: np.ndarray, min_confidence: float,
-                 fringes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(
+        self, out: np.ndarray, min_confidence: float, fringes: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """out: (4, H, W) carrier numerator, denominator, code numerator, denominator; fringes: the
         pixels that show fringes (default all). Returns (depth mm, confidence), NaN where unknown."""
         num, den, code_num, code_den = (np.ascontiguousarray(c, np.float32) for c in out)
@@ -308,8 +342,9 @@ class CompositeDecoder:
         for _ in range(2):  # the order nearest the neighbourhood's median phase
             local = carrier + two_pi * np.rint((cv2.medianBlur(local, 5) - carrier) / two_pi)
         agree = (np.abs(own - local) < np.pi) & fringes
-        confidence = cv2.boxFilter(agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW),
-                                   borderType=cv2.BORDER_REPLICATE)
+        confidence = cv2.boxFilter(
+            agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW), borderType=cv2.BORDER_REPLICATE
+        )
         confidence[~fringes] = np.nan
         ca, cb, da, db = self.terms
         depth = (ca + cb * own) / (da + db * own)
@@ -329,13 +364,18 @@ def composite_ftp_phases(image: np.ndarray, calibration: Calibration):
     code = carrier / CODE_ORDERS + cal.code_row_phase_at_depth(cal.reference_depth_mm, u, v)
     h, w = image.shape
     carrier, amplitude = ftp_wrapped_phase(image, True, carrier=np.median(np.diff(carrier, axis=1)) * w / TWO_PI)
-    code, _ = ftp_code_phase(image, centre=(np.median(np.diff(code, axis=1)) * w / TWO_PI,
-                                            np.median(np.diff(code, axis=0)) * h / TWO_PI))
+    code, _ = ftp_code_phase(
+        image, centre=(np.median(np.diff(code, axis=1)) * w / TWO_PI, np.median(np.diff(code, axis=0)) * h / TWO_PI)
+    )
     return carrier, code, amplitude
 
 
-def reconstruct_ftp(image: np.ndarray, calibration: Calibration, limits: QualityLimits = QualityLimits(),
-                    decoder: CompositeDecoder | None = None) -> Reconstruction:
+def reconstruct_ftp(
+    image: np.ndarray,
+    calibration: Calibration,
+    limits: QualityLimits = QualityLimits(),
+    decoder: CompositeDecoder | None = None,
+) -> Reconstruction:
     """Single-shot baseline: Takeda's FTP wrapped phase, then the same rational model.
 
     With the composite (a calibration with a code model) the code grating's own lobe tells each
@@ -359,8 +399,9 @@ def reconstruct_ftp(image: np.ndarray, calibration: Calibration, limits: Quality
         depth, _ = decoder(out, FTP_MIN_CONFIDENCE, fringes)
         depth, valid = trusted_depth(depth, np.isfinite(depth), limits.max_depth_step_mm)
         phase = cal.model.phase_at_depth(depth, u, v)
-        return Reconstruction(depth, back_project(depth, cal.camera), valid, amplitude.astype(np.float32),
-                              phase.astype(np.float32))
+        return Reconstruction(
+            depth, back_project(depth, cal.camera), valid, amplitude.astype(np.float32), phase.astype(np.float32)
+        )
     vertical = cal.patterns.orientation == "vertical"
     reference = cal.model.phase_at_depth(cal.reference_depth_mm, u, v) * np.ones(image.shape)
     wrapped, amplitude = ftp_wrapped_phase(image, vertical)
@@ -372,5 +413,6 @@ def reconstruct_ftp(image: np.ndarray, calibration: Calibration, limits: Quality
     phase += TWO_PI * np.rint(np.median(reference - phase) / TWO_PI)
     valid = amplitude >= limits.min_modulation * full_scale(image.dtype)
     depth, valid = trusted_depth(cal.model.depth(phase, u, v).astype(np.float32), valid, limits.max_depth_step_mm)
-    return Reconstruction(depth, back_project(depth, cal.camera), valid, amplitude.astype(np.float32),
-                          phase.astype(np.float32))
+    return Reconstruction(
+        depth, back_project(depth, cal.camera), valid, amplitude.astype(np.float32), phase.astype(np.float32)
+    )

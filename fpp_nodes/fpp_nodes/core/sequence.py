@@ -6,6 +6,7 @@ missing, duplicated or out-of-order frame, a frame of another size or type, or t
 backwards (a camera that restarted) ends the sequence in progress: it is dropped, counted and the
 reason returned, never mixed into the next one.
 """
+
 from __future__ import annotations
 
 from collections import deque
@@ -87,16 +88,18 @@ class SequenceAssembler:
         if self._stamps:
             expected = len(self._stamps)
             if stamp_ns <= self._stamps[-1]:
-                dropped = self._drop(f"time went backwards: frame {index} stamped before frame {expected - 1} "
-                                     f"(camera restarted?)")
+                dropped = self._drop(
+                    f"time went backwards: frame {index} stamped before frame {expected - 1} (camera restarted?)"
+                )
             elif index == 0:
                 dropped = self._drop(f"incomplete: a new sequence began after {expected} of {self.count} frames")
             elif index != expected:
                 what = "duplicated" if index == expected - 1 else "missing" if index > expected else "out of order"
                 dropped = self._drop(f"{what} frame: expected pattern {expected}, got {index}")
             elif image.shape != self._buffer.shape[1:] or image.dtype != self._buffer.dtype:
-                dropped = self._drop(f"frame changed: {image.dtype} {image.shape} after "
-                                     f"{self._buffer.dtype} {self._buffer.shape[1:]}")
+                dropped = self._drop(
+                    f"frame changed: {image.dtype} {image.shape} after {self._buffer.dtype} {self._buffer.shape[1:]}"
+                )
         if not self._stamps:
             if index != 0:
                 self.stats.frames_discarded += 1  # mid-sequence: wait for the next start

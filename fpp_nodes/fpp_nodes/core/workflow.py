@@ -1,5 +1,6 @@
 """The steps a user strings together, as functions: calibrate from planes, and the simulated
 calibrate-then-measure experiment behind the demo, the tests and the README's numbers."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -12,7 +13,8 @@ from .metrics import DepthErrors, depth_errors, noise_limited_depth_std
 from .patterns import CODE_ORDERS, PatternSet
 from .phase import TWO_PI, ftp_code_phase, unwrap_spatial
 from .reconstruct import QualityLimits, Reconstruction, multi_frequency_phase
-from .simulation import Rig, make_scene, plane_scene, render
+from .scenes import make_scene, plane_scene
+from .simulation import Rig, render
 
 CALIBRATION_DEPTHS_MM = (1100.0, 1150.0, 1200.0, 1250.0, 1300.0)
 
@@ -22,9 +24,15 @@ CALIBRATION_DEPTHS_MM = (1100.0, 1150.0, 1200.0, 1250.0, 1300.0)
 CALIBRATION_MAX_PHASE_NOISE_RAD = 0.05
 
 
-def calibrate_from_planes(stacks, depths_mm, camera: CameraIntrinsics, patterns: PatternSet,
-                          reference_depth_mm: float | None = None, sample_step: int = 4,
-                          limits: QualityLimits = QualityLimits()):
+def calibrate_from_planes(
+    stacks,
+    depths_mm,
+    camera: CameraIntrinsics,
+    patterns: PatternSet,
+    reference_depth_mm: float | None = None,
+    sample_step: int = 4,
+    limits: QualityLimits = QualityLimits(),
+):
     """Fit the rational model from fringe stacks of flat planes square to the camera at known depths
     (a plate on a translation stage). Returns (calibration, fit RMSE in mm per plane).
 
@@ -40,8 +48,10 @@ def calibrate_from_planes(stacks, depths_mm, camera: CameraIntrinsics, patterns:
     for images, z in zip(stacks, depths_mm):
         images = np.asarray(images)
         if images.shape[1:] != camera.shape:
-            raise CalibrationError(f"plane at {z} mm: images are {images.shape[2]}x{images.shape[1]}, "
-                                   f"the camera is {camera.width}x{camera.height}")
+            raise CalibrationError(
+                f"plane at {z} mm: images are {images.shape[2]}x{images.shape[1]}, "
+                f"the camera is {camera.width}x{camera.height}"
+            )
         phase, valid, _, noise = multi_frequency_phase(images, patterns, limits)
         valid &= noise <= CALIBRATION_MAX_PHASE_NOISE_RAD
         v, u = np.nonzero(valid)
@@ -64,7 +74,9 @@ def calibrate_from_planes(stacks, depths_mm, camera: CameraIntrinsics, patterns:
         keep = (slice(None, None, sample_step),) * 2
         v, u = (np.tile(a[keep].ravel(), len(code_samples)) for a in np.indices(code_samples[0].shape))
         chi = np.concatenate([c[keep].ravel() for c in code_samples])
-        code_model = fit_rational_model(u, v, chi, np.repeat(np.asarray(depths_mm, float), chi.size // len(code_samples)))
+        code_model = fit_rational_model(
+            u, v, chi, np.repeat(np.asarray(depths_mm, float), chi.size // len(code_samples))
+        )
     return Calibration(camera, model, patterns, reference, code_model), residuals
 
 
@@ -75,14 +87,19 @@ def code_row_phase(composite: np.ndarray, phase: np.ndarray, valid: np.ndarray) 
     """The code grating's row phase on a plane (its FTP phase less the carrier's absolute phase /
     CODE_ORDERS), unwrapped across the plane; NaN near edges and where the multi-shot phase is untrusted."""
     code, _ = ftp_code_phase(composite)
-    inner = cv2.erode(valid.astype(np.uint8), np.ones((2 * CODE_BORDER_PX + 1,) * 2, np.uint8),
-                      borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+    inner = cv2.erode(
+        valid.astype(np.uint8),
+        np.ones((2 * CODE_BORDER_PX + 1,) * 2, np.uint8),
+        borderType=cv2.BORDER_CONSTANT,
+        borderValue=0,
+    ).astype(bool)
     if not inner.any():
         raise CalibrationError("a plane's composite frame shows no fringes away from its edges")
     # outside the trusted pixels the phases are noise, whose 2 pi jumps would spread through the
     # unwrapping: each takes its nearest trusted pixel's wrapped row phase instead
-    _, nearest = cv2.distanceTransformWithLabels((~inner).astype(np.uint8), cv2.DIST_L2, 5,
-                                                 labelType=cv2.DIST_LABEL_PIXEL)
+    _, nearest = cv2.distanceTransformWithLabels(
+        (~inner).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
+    )
     wrapped = np.mod(code - phase / CODE_ORDERS, TWO_PI)
     sources = np.zeros(nearest.max() + 1, wrapped.dtype)
     sources[nearest[inner]] = wrapped[inner]
@@ -90,8 +107,9 @@ def code_row_phase(composite: np.ndarray, phase: np.ndarray, valid: np.ndarray) 
     return np.where(inner, row, np.nan)
 
 
-def simulated_calibration(rig: Rig, patterns: PatternSet, seed: int = 0,
-                          depths_mm=CALIBRATION_DEPTHS_MM) -> tuple[Calibration, list[float]]:
+def simulated_calibration(
+    rig: Rig, patterns: PatternSet, seed: int = 0, depths_mm=CALIBRATION_DEPTHS_MM
+) -> tuple[Calibration, list[float]]:
     """Calibrate the simulated rig the way a user calibrates a real one: render noisy planes, fit."""
     rng = np.random.default_rng(seed)
     stacks = [render(rig, plane_scene(rig, z), patterns, rng).images for z in depths_mm]
@@ -111,17 +129,22 @@ def fringe_depth_mm(calibration: Calibration, phase: np.ndarray) -> np.ndarray:
     return np.abs(calibration.model.depth_per_radian(phase, u, v)) * 2.0 * np.pi
 
 
-def score(rec: Reconstruction, truth_depth, truth_valid, calibration: Calibration, noise_sigma: float,
-          name: str) -> SceneResult:
+def score(
+    rec: Reconstruction, truth_depth, truth_valid, calibration: Calibration, noise_sigma: float, name: str
+) -> SceneResult:
     """Errors against ground truth, and the RMSE that camera noise alone causes in a phase-shifting
     reconstruction with this modulation (metrics.noise_limited_depth_std, with the camera's rounding
     adding 1/12 count^2 of variance to noise_sigma^2)."""
     errors = depth_errors(rec.depth_mm, truth_depth, truth_valid, fringe_depth_mm(calibration, rec.phase))
     u, v = pixel_grid(rec.phase.shape)
     mask = np.isfinite(rec.depth_mm) & truth_valid & (rec.modulation > 0)
-    std = noise_limited_depth_std(rec.modulation[mask], calibration.model.depth_per_radian(rec.phase, u, v)[mask],
-                                  calibration.patterns.steps, np.sqrt(noise_sigma ** 2 + 1.0 / 12.0))
-    return SceneResult(name, errors, float(np.sqrt(np.mean(std ** 2))) if std.size else float("nan"))
+    std = noise_limited_depth_std(
+        rec.modulation[mask],
+        calibration.model.depth_per_radian(rec.phase, u, v)[mask],
+        calibration.patterns.steps,
+        np.sqrt(noise_sigma**2 + 1.0 / 12.0),
+    )
+    return SceneResult(name, errors, float(np.sqrt(np.mean(std**2))) if std.size else float("nan"))
 
 
 def held_out_scenes(rig: Rig, count: int, first_seed: int = 1000):

@@ -8,6 +8,7 @@ single-shot frame (the composite, its last frame; or with the paper's pattern se
 the highest frequency), with that frame's stamp. A sequence with a missing,
 duplicated or out-of-order frame is dropped with a warning and counted, never mixed into the next.
 """
+
 from __future__ import annotations
 
 import sys
@@ -28,12 +29,14 @@ class CaptureSequence(Node):
     def __init__(self, **kwargs):
         super().__init__("capture_sequence", **kwargs)
         self.health = Health(self)
-        self.max_offset_ns = int(declare(self, "max_time_offset", 0.005,
-                                         "largest |camera stamp - pattern stamp| of a match, seconds") * 1e9)
+        self.max_offset_ns = int(
+            declare(self, "max_time_offset", 0.005, "largest |camera stamp - pattern stamp| of a match, seconds") * 1e9
+        )
         check_positive("max_time_offset", self.max_offset_ns)
         on_set(self, {"max_time_offset": check_positive})
         self.add_post_set_parameters_callback(
-            lambda ps: [self._set_max_offset(int(p.value * 1e9)) for p in ps if p.name == "max_time_offset"])
+            lambda ps: [self._set_max_offset(int(p.value * 1e9)) for p in ps if p.name == "max_time_offset"]
+        )
         self._use(*load_calibration(self))
         follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
         self.unmatched = 0
@@ -60,8 +63,9 @@ class CaptureSequence(Node):
             self.health.report("patterns rejected", f"pattern ignored: {e}")
             return
         if index is None:
-            self.health.report("patterns rejected", "the projector shows a pattern that is not in the calibration's "
-                                                    "pattern set")
+            self.health.report(
+                "patterns rejected", "the projector shows a pattern that is not in the calibration's pattern set"
+            )
             return
         self._drain()
 
@@ -87,8 +91,11 @@ class CaptureSequence(Node):
 
     def _unmatched(self, frame: Image):
         self.unmatched += 1
-        self.health.report("frames matching no pattern", f"camera frame matches no projected pattern (within "
-                                                         f"{self.max_offset_ns / 1e9:g} s); {self.unmatched} so far")
+        self.health.report(
+            "frames matching no pattern",
+            f"camera frame matches no projected pattern (within "
+            f"{self.max_offset_ns / 1e9:g} s); {self.unmatched} so far",
+        )
 
     def _assemble(self, msg: Image, index: int):
         try:
@@ -101,34 +108,42 @@ class CaptureSequence(Node):
         sequence, dropped = self.assembler.add(index, stamp_ns(msg.header.stamp), image)
         stats = self.assembler.stats
         if dropped:
-            self.health.report("sequences dropped", f"sequence dropped ({dropped}); {stats.dropped} dropped, "
-                                                    f"{stats.completed} complete so far")
+            self.health.report(
+                "sequences dropped",
+                f"sequence dropped ({dropped}); {stats.dropped} dropped, {stats.completed} complete so far",
+            )
         if sequence is None:
             return
         self.health.count("sequences complete")
         if self.publisher.get_subscription_count() > 0:  # no copy for nobody
             k, h, w = sequence.images.shape
-            self.publisher.publish(numpy_to_image(sequence.images.reshape(k * h, w),
-                                                  header_at(sequence.stamps_ns[0], msg.header.frame_id)))
+            self.publisher.publish(
+                numpy_to_image(sequence.images.reshape(k * h, w), header_at(sequence.stamps_ns[0], msg.header.frame_id))
+            )
         if self.single_publisher.get_subscription_count() > 0:
             i = self.calibration.patterns.single_shot_index
-            self.single_publisher.publish(numpy_to_image(sequence.images[i],
-                                                         header_at(sequence.stamps_ns[i], msg.header.frame_id)))
+            self.single_publisher.publish(
+                numpy_to_image(sequence.images[i], header_at(sequence.stamps_ns[i], msg.header.frame_id))
+            )
 
     def destroy_node(self):
         s = self.assembler.stats
         # printed, not logged: at shutdown rosout may already be gone
-        print(f"[capture_sequence] frames in {s.frames_in}, sequences complete {s.completed}, dropped {s.dropped}"
-              f"{' ' + str(s.reasons) if s.reasons else ''}, frames matching no pattern {self.unmatched}",
-              file=sys.stderr, flush=True)
+        print(
+            f"[capture_sequence] frames in {s.frames_in}, sequences complete {s.completed}, dropped {s.dropped}"
+            f"{' ' + str(s.reasons) if s.reasons else ''}, frames matching no pattern {self.unmatched}",
+            file=sys.stderr,
+            flush=True,
+        )
         return super().destroy_node()
 
 
 def check_frame(image: np.ndarray, camera) -> None:
     """A camera frame the multi-shot path can use: the calibration's size, finite if float."""
     if image.shape != camera.shape:
-        raise ImageError(f"frame is {image.shape[1]}x{image.shape[0]}, the calibration's camera is "
-                         f"{camera.width}x{camera.height}")
+        raise ImageError(
+            f"frame is {image.shape[1]}x{image.shape[0]}, the calibration's camera is {camera.width}x{camera.height}"
+        )
     if image.dtype.kind == "f" and not np.isfinite(image).all():
         raise ImageError(f"{image.size - np.count_nonzero(np.isfinite(image))} pixels are NaN or Inf")
 

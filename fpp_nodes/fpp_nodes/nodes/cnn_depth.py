@@ -1,20 +1,22 @@
 """cnn_depth: the single-shot path. One fringe image -> depth and point cloud through a trained
 network (ONNX, run with onnxruntime).
 
-Subscribes camera/image_raw (mono8/mono16: the single-shot frame the model was trained on, its card's
-pattern set: the composite by default, the paper's first image of the highest frequency for the
-paper's networks; a calibration whose pattern set differs stops the node at start), keeping only the newest frame (KEEP_LAST 1): under load older frames are
-dropped, never queued. Publishes depth/image (32FC1, metres, NaN where the image shows no usable
-fringes: shadows, dark or saturated areas), depth/camera_info and points (organized PointCloud2,
-metres), with the image's header, and its health on /diagnostics. A phase-aware model also gives
-confidence/image (32FC1, 0-1: for the composite model how well the code agrees with the chosen fringe
-order, 1 exactly, 0 half-way to the next; for the paper-pattern phase model the probability that the
-order is right; depth is NaN below the threshold its card holds, chosen on validation data). A frame of the wrong size or
-encoding is rejected and counted; a missing, corrupt or mismatched model stops the node at start.
-Parameters: model (path; empty = the shipped default), providers (CPUExecutionProvider; CUDA where
-present), threads (onnxruntime intra-op threads), min_confidence (negative: the model card's),
-calibration (intrinsics for the cloud).
+Subscribes camera/image_raw (mono8/mono16: the single-shot frame the model was trained on, its
+card's pattern set: the composite by default, the paper's first image of the highest frequency for
+the paper's networks; a calibration whose pattern set differs stops the node at start), keeping only
+the newest frame (KEEP_LAST 1): under load older frames are dropped, never queued. Publishes
+depth/image (32FC1, metres, NaN where the image shows no usable fringes: shadows, dark or saturated
+areas), depth/camera_info and points (organized PointCloud2, metres), with the image's header, and
+its health on /diagnostics. A phase-aware model also gives confidence/image (32FC1, 0-1: for the
+composite model how well the code agrees with the chosen fringe order, 1 exactly, 0 half-way to the
+next; for the paper-pattern phase model the probability that the order is right; depth is NaN below
+the threshold its card holds, chosen on validation data). A frame of the wrong size or encoding is
+rejected and counted; a missing, corrupt or mismatched model stops the node at start. Parameters:
+model (path; empty = the shipped default), providers (CPUExecutionProvider; CUDA where present),
+threads (onnxruntime intra-op threads), min_confidence (negative: the model card's), calibration
+(intrinsics for the cloud).
 """
+
 from __future__ import annotations
 
 import time
@@ -40,8 +42,14 @@ class CnnDepth(Node):
         path = declare(self, "model", "", "ONNX model with its card beside it (empty: the shipped default)", True)
         providers = declare(self, "providers", ["CPUExecutionProvider"], "onnxruntime execution providers", True)
         threads = declare(self, "threads", 2, "onnxruntime intra-op threads", True)
-        min_confidence = declare(self, "min_confidence", -1.0, "a phase-aware model's order confidence below which "
-                                 "depth is NaN (negative: its card's, chosen on validation data)", True)
+        min_confidence = declare(
+            self,
+            "min_confidence",
+            -1.0,
+            "a phase-aware model's order confidence below which "
+            "depth is NaN (negative: its card's, chosen on validation data)",
+            True,
+        )
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
         if min_confidence > 1.0:
@@ -56,8 +64,10 @@ class CnnDepth(Node):
         self.model.check_patterns(self.calibration.patterns)
         cam = self.calibration.camera
         if (cam.width, cam.height) != self.model.size:
-            raise ModelError(f"the model was trained for {self.model.size[0]}x{self.model.size[1]} images, "
-                             f"the calibration's camera is {cam.width}x{cam.height}")
+            raise ModelError(
+                f"the model was trained for {self.model.size[0]}x{self.model.size[1]} images, "
+                f"the calibration's camera is {cam.width}x{cam.height}"
+            )
         self.info = camera_info(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
         self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
         self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
@@ -65,11 +75,15 @@ class CnnDepth(Node):
         self.confidence_pub = self.create_publisher(Image, Topics.CONFIDENCE, Qos.LARGE)
         self.create_subscription(Image, Topics.CAMERA_IMAGE, self._on_image, NEWEST_ONLY)
         card = self.model.card
-        self.health.facts.update({"model": path, "model sha256": card["sha256"][:12],
-                                  "architecture": str(card.get("architecture")),
-                                  "providers": ", ".join(self.model.providers)})
-        self.get_logger().info(f"model {path} ({card.get('architecture')}), "
-                               f"providers {self.model.providers}")
+        self.health.facts.update(
+            {
+                "model": path,
+                "model sha256": card["sha256"][:12],
+                "architecture": str(card.get("architecture")),
+                "providers": ", ".join(self.model.providers),
+            }
+        )
+        self.get_logger().info(f"model {path} ({card.get('architecture')}), providers {self.model.providers}")
 
     def _on_image(self, msg: Image):
         self.health.count("frames in")
@@ -90,8 +104,9 @@ class CnnDepth(Node):
         if want_confidence and confidence is not None:
             self.confidence_pub.publish(numpy_to_image(confidence, msg.header))
         if want_points:
-            self.points_pub.publish(xyz_to_cloud(back_project(depth_mm, self.calibration.camera) * np.float32(0.001),
-                                                 msg.header))
+            self.points_pub.publish(
+                xyz_to_cloud(back_project(depth_mm, self.calibration.camera) * np.float32(0.001), msg.header)
+            )
         self.info.header = msg.header
         self.info_pub.publish(self.info)
         self.health.count("depth out")

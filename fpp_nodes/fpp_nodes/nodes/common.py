@@ -1,4 +1,5 @@
 """What every node shares: declaring validated parameters, loading the calibration, the main loop."""
+
 from __future__ import annotations
 
 import hashlib
@@ -15,8 +16,11 @@ from fpp_msgs_py import Qos, Topics
 
 from ..core.calibration import Calibration, CalibrationError, default_calibration_path
 
-MESSAGE_TYPES = {"sensor_msgs/msg/Image": Image, "sensor_msgs/msg/CameraInfo": CameraInfo,
-                 "sensor_msgs/msg/PointCloud2": PointCloud2}
+MESSAGE_TYPES = {
+    "sensor_msgs/msg/Image": Image,
+    "sensor_msgs/msg/CameraInfo": CameraInfo,
+    "sensor_msgs/msg/PointCloud2": PointCloud2,
+}
 
 
 def declare(node: Node, name: str, default, description: str, read_only: bool = False):
@@ -27,8 +31,16 @@ def declare(node: Node, name: str, default, description: str, read_only: bool = 
 
 def load_calibration(node: Node) -> tuple[Calibration, str]:
     """The calibration named by the node's `calibration` parameter, and where it came from."""
-    path = declare(node, "calibration", "", "calibration YAML (empty: the simulated rig's, shipped with the package)",
-                   read_only=True) or default_calibration_path()
+    path = (
+        declare(
+            node,
+            "calibration",
+            "",
+            "calibration YAML (empty: the simulated rig's, shipped with the package)",
+            read_only=True,
+        )
+        or default_calibration_path()
+    )
     calibration = Calibration.load(path)  # CalibrationError names the problem
     node.get_logger().info(f"calibration {describe(calibration, path)}")
     return calibration, path
@@ -37,13 +49,16 @@ def load_calibration(node: Node) -> tuple[Calibration, str]:
 def describe(calibration: Calibration, source: str) -> str:
     """Which calibration, for logs and /diagnostics: where from, its size, a hash of its content."""
     digest = hashlib.sha256(calibration.to_yaml().encode()).hexdigest()[:12]
-    return (f"{source} ({calibration.camera.width}x{calibration.camera.height}, {calibration.patterns.count} patterns, "
-            f"sha256 {digest})")
+    return (
+        f"{source} ({calibration.camera.width}x{calibration.camera.height}, {calibration.patterns.count} patterns, "
+        f"sha256 {digest})"
+    )
 
 
 def follow_calibration(node: Node, current, use) -> None:
     """Switch to a calibration published on fpp/calibration (a replayed bag's): use(calibration) is
     called when one arrives that differs from current(); a bad one is an error and changes nothing."""
+
     def callback(msg: String):
         try:
             calibration = Calibration.from_yaml(msg.data)
@@ -53,12 +68,14 @@ def follow_calibration(node: Node, current, use) -> None:
         if calibration.to_dict() != current().to_dict():
             use(calibration)
             node.get_logger().info(f"using the calibration from {Topics.CALIBRATION}")
+
     node.create_subscription(String, Topics.CALIBRATION, callback, Qos.LATCHED)
 
 
 def on_set(node: Node, checks: dict):
     """Validate runtime parameter changes: checks maps a name to check(name, value), which raises
     ValueError for a value the node cannot use; the change is then refused with that message."""
+
     def callback(params):
         for p in params:
             try:
@@ -66,6 +83,7 @@ def on_set(node: Node, checks: dict):
             except ValueError as e:
                 return SetParametersResult(successful=False, reason=str(e))
         return SetParametersResult(successful=True)
+
     node.add_on_set_parameters_callback(callback)
 
 

@@ -5,6 +5,7 @@ prints the latency of each stage and the accuracy against the ground truth.
 
     ros2 run fpp_nodes demo [--out out/demo] [--clouds 5] [--scene sculpture] [--seed 0]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,9 +22,11 @@ from sensor_msgs.msg import Image, PointCloud2
 
 from fpp_msgs_py import Qos, Topics, cloud_to_xyz, image_to_numpy, stamp_ns
 
-from ..core import io, pictures
+from .. import pictures
+from ..core import io
 from ..core.calibration import Calibration, default_calibration_path
 from ..processes import start_process, stop_process
+
 
 class DemoRobot(Node):
     """Subscribes to everything a robot and its operator look at, noting when each message arrives."""
@@ -32,15 +35,22 @@ class DemoRobot(Node):
         super().__init__("demo_robot")
         self.frames, self.clouds, self.cnn_clouds, self.truth = {}, [], [], None
         clock = time.time_ns
-        self.create_subscription(Image, Topics.CAMERA_IMAGE, lambda m: self.frames.__setitem__(stamp_ns(m.header.stamp), clock()), Qos.FRAMES)
+        self.create_subscription(
+            Image, Topics.CAMERA_IMAGE, lambda m: self.frames.__setitem__(stamp_ns(m.header.stamp), clock()), Qos.FRAMES
+        )
         self.create_subscription(PointCloud2, Topics.POINTS, lambda m: self.clouds.append((m, clock())), Qos.LARGE)
-        self.create_subscription(PointCloud2, "cnn/" + Topics.POINTS, lambda m: self.cnn_clouds.append((m, clock())),
-                                 Qos.LARGE)
-        self.create_subscription(Image, Topics.TRUTH, lambda m: setattr(self, "truth", image_to_numpy(m).copy()), Qos.LATCHED)
+        self.create_subscription(
+            PointCloud2, "cnn/" + Topics.POINTS, lambda m: self.cnn_clouds.append((m, clock())), Qos.LARGE
+        )
+        self.create_subscription(
+            Image, Topics.TRUTH, lambda m: setattr(self, "truth", image_to_numpy(m).copy()), Qos.LATCHED
+        )
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="demo", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="demo", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--out", default="out/demo")
     parser.add_argument("--clouds", type=int, default=5)
     parser.add_argument("--scene", default="sculpture")
@@ -49,8 +59,21 @@ def main(argv=None):
     args = parser.parse_args(rclpy.utilities.remove_ros_args(argv if argv is not None else sys.argv)[1:])
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    sensor = start_process([sys.executable, "-m", "fpp_nodes.nodes.sensor", "--ros-args",
-                            "-p", f"scene:={args.scene}", "-p", f"seed:={args.seed}"], dict(os.environ), None, None)
+    sensor = start_process(
+        [
+            sys.executable,
+            "-m",
+            "fpp_nodes.nodes.sensor",
+            "--ros-args",
+            "-p",
+            f"scene:={args.scene}",
+            "-p",
+            f"seed:={args.seed}",
+        ],
+        dict(os.environ),
+        None,
+        None,
+    )
     rclpy.init()
     robot = DemoRobot()
     try:
@@ -85,9 +108,16 @@ def per_cloud(robot: DemoRobot, frames_per_sequence: int | None = None) -> list[
             continue  # not all of its frames were seen here
         last = frame_stamps[k]
         rmse, cover = cloud_rmse_mm(cloud, robot.truth)
-        rows.append({"camera": (robot.frames[last] - last) / 1e6, "capture+depth": (arrived - robot.frames[last]) / 1e6,
-                     "end-to-end": (arrived - last) / 1e6, "sequence": (last - first) / 1e6,
-                     "rmse_mm": rmse, "cover": cover})
+        rows.append(
+            {
+                "camera": (robot.frames[last] - last) / 1e6,
+                "capture+depth": (arrived - robot.frames[last]) / 1e6,
+                "end-to-end": (arrived - last) / 1e6,
+                "sequence": (last - first) / 1e6,
+                "rmse_mm": rmse,
+                "cover": cover,
+            }
+        )
     return rows
 
 
@@ -108,7 +138,9 @@ def write_pictures(out: Path, clouds: list, truth_m: np.ndarray, prefix: str, la
         xyz = cloud_to_xyz(cloud)
         depth = xyz[..., 2] * 1000.0
         cv2.imwrite(str(out / f"{prefix}depth_{i:02d}.png"), pictures.depth_picture(depth, lo, hi, f"{label} depth"))
-        cv2.imwrite(str(out / f"{prefix}error_{i:02d}.png"), pictures.error_picture(depth, truth, title=f"{label} - truth"))
+        cv2.imwrite(
+            str(out / f"{prefix}error_{i:02d}.png"), pictures.error_picture(depth, truth, title=f"{label} - truth")
+        )
         if i == 0:  # the scene does not move: one view is enough
             cv2.imwrite(str(out / f"{prefix}cloud_{i:02d}.png"), pictures.cloud_view(xyz, lo=lo / 1000, hi=hi / 1000))
             first = depth
@@ -119,17 +151,28 @@ def report(robot: DemoRobot, out: Path) -> None:
     rows = per_cloud(robot)
     for i, (cloud, _) in enumerate(robot.clouds):
         io.write_ply(out / f"cloud_{i:02d}.ply", cloud_to_xyz(cloud))
-    curves = {"ground truth": robot.truth * 1000.0,
-              "multi-shot": write_pictures(out, robot.clouds, robot.truth, "", "multi-shot")}
-    print(f"\n{len(rows)} clouds (640x480, organized) from the simulated sensor; milliseconds, from the stamps "
-          "(when each pattern was shown) to arrival here")
-    print(f"{'cloud':>5} {'camera':>7} {'capture+depth':>13} {'end-to-end':>10} {'sequence':>9} {'RMSE mm':>8} {'cover':>6}")
+    curves = {
+        "ground truth": robot.truth * 1000.0,
+        "multi-shot": write_pictures(out, robot.clouds, robot.truth, "", "multi-shot"),
+    }
+    print(
+        f"\n{len(rows)} clouds (640x480, organized) from the simulated sensor; milliseconds, from the stamps "
+        "(when each pattern was shown) to arrival here"
+    )
+    print(
+        f"{'cloud':>5} {'camera':>7} {'capture+depth':>13} {'end-to-end':>10} {'sequence':>9} "
+        f"{'RMSE mm':>8} {'cover':>6}"
+    )
     for i, r in enumerate(rows):
-        print(f"{i:5d} {r['camera']:7.1f} {r['capture+depth']:13.1f} {r['end-to-end']:10.1f} {r['sequence']:9.1f} "
-              f"{r['rmse_mm']:8.4f} {r['cover']:6.1%}")
-    print("camera: a sequence's last frame arrives, after its pattern was shown; capture+depth: then the cloud "
-          "arrives;\nend-to-end: last pattern shown to cloud here; sequence: first to last pattern shown. "
-          "RMSE and cover (of lit pixels) against the simulator's exact depth.")
+        print(
+            f"{i:5d} {r['camera']:7.1f} {r['capture+depth']:13.1f} {r['end-to-end']:10.1f} {r['sequence']:9.1f} "
+            f"{r['rmse_mm']:8.4f} {r['cover']:6.1%}"
+        )
+    print(
+        "camera: a sequence's last frame arrives, after its pattern was shown; capture+depth: then the cloud "
+        "arrives;\nend-to-end: last pattern shown to cloud here; sequence: first to last pattern shown. "
+        "RMSE and cover (of lit pixels) against the simulator's exact depth."
+    )
     if robot.cnn_clouds:
         print("\nside by side, the single-shot path (cnn_depth on each sequence's single-shot frame, the composite):")
         print(f"{'cloud':>5} {'image->cloud ms':>15} {'RMSE mm':>8} {'cover':>6}")
@@ -140,9 +183,11 @@ def report(robot: DemoRobot, out: Path) -> None:
         curves["single-shot (CNN)"] = write_pictures(out, robot.cnn_clouds, robot.truth, "cnn_", "single-shot")
     row = pictures.profile_row(curves["ground truth"])
     cv2.imwrite(str(out / "profile.png"), pictures.height_profile(row, {k: v[row] for k, v in curves.items()}))
-    print(f"wrote {len(robot.clouds) + len(robot.cnn_clouds)} .ply clouds (metres) and their pictures to {out}: "
-          "[cnn_]depth_NN.png, [cnn_]error_NN.png (against the simulator's exact depth), [cnn_]cloud_00.png "
-          "(rendered view), profile.png (depth along one row)")
+    print(
+        f"wrote {len(robot.clouds) + len(robot.cnn_clouds)} .ply clouds (metres) and their pictures to {out}: "
+        "[cnn_]depth_NN.png, [cnn_]error_NN.png (against the simulator's exact depth), [cnn_]cloud_00.png "
+        "(rendered view), profile.png (depth along one row)"
+    )
 
 
 if __name__ == "__main__":

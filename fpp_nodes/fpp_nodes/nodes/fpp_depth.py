@@ -6,6 +6,7 @@ invalid), depth/camera_info, points (organized PointCloud2, metres, optical fram
 the N-step fit, through the calibration's dz/dphi; NaN invalid), each with the sequence's header. Outputs nobody
 subscribes to are not computed; with no subscriber at all, nothing is.
 """
+
 from __future__ import annotations
 
 import time
@@ -28,10 +29,21 @@ class FppDepth(Node):
         self.health = Health(self)
         calibration, source = load_calibration(self)
         self.limits = QualityLimits(
-            max_depth_noise_mm=declare(self, "max_depth_noise_mm", QualityLimits.max_depth_noise_mm,
-                                       "largest expected depth noise kept (quality/image), mm", True),
-            max_depth_step_mm=declare(self, "max_depth_step_mm", QualityLimits.max_depth_step_mm,
-                                      "largest depth step between neighbours kept (flying pixels), mm", True))
+            max_depth_noise_mm=declare(
+                self,
+                "max_depth_noise_mm",
+                QualityLimits.max_depth_noise_mm,
+                "largest expected depth noise kept (quality/image), mm",
+                True,
+            ),
+            max_depth_step_mm=declare(
+                self,
+                "max_depth_step_mm",
+                QualityLimits.max_depth_step_mm,
+                "largest depth step between neighbours kept (flying pixels), mm",
+                True,
+            ),
+        )
         self._use(calibration, source)
         follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
         self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
@@ -48,8 +60,10 @@ class FppDepth(Node):
         self.info = camera_info(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)
 
     def _wanted(self):
-        return {name: pub.get_subscription_count() > 0 for name, pub in
-                (("depth", self.depth_pub), ("points", self.points_pub), ("quality", self.quality_pub))}
+        return {
+            name: pub.get_subscription_count() > 0
+            for name, pub in (("depth", self.depth_pub), ("points", self.points_pub), ("quality", self.quality_pub))
+        }
 
     def _on_sequence(self, msg: Image):
         self.health.count("sequences in")
@@ -62,8 +76,10 @@ class FppDepth(Node):
         try:
             stack = image_to_numpy(msg)
             if stack.shape != (k * cam.height, cam.width):
-                raise ImageError(f"expected {k} stacked {cam.width}x{cam.height} images ({cam.width}x{k * cam.height}), "
-                                 f"got {stack.shape[1]}x{stack.shape[0]}")
+                raise ImageError(
+                    f"expected {k} stacked {cam.width}x{cam.height} images ({cam.width}x{k * cam.height}), "
+                    f"got {stack.shape[1]}x{stack.shape[0]}"
+                )
             rec = self.reconstruct(stack.reshape(k, cam.height, cam.width))
         except (ImageError, PhaseError) as e:
             self.health.report("sequences rejected", f"sequence rejected: {e}")

@@ -1,9 +1,11 @@
 """fringe_camera_sim: the simulated camera. Sees the pattern the projector shows on a synthetic scene.
 
-Subscribes projector/pattern (a fringe line or a full pattern image); publishes camera/image_raw (mono8 or mono16) and camera/camera_info,
-stamped with the time of the pattern it captured, and sim/depth_truth (32FC1, metres, NaN in
-projector shadow; latched) for evaluation. A real camera driver or a bag replaces it.
+Subscribes projector/pattern (a fringe line or a full pattern image); publishes camera/image_raw
+(mono8 or mono16) and camera/camera_info, stamped with the time of the pattern it captured, and
+sim/depth_truth (32FC1, metres, NaN in projector shadow; latched) for evaluation. A real camera
+driver or a bag replaces it.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -13,24 +15,30 @@ from std_msgs.msg import Header
 
 from fpp_msgs_py import Frames, ImageError, Qos, Topics, camera_info, image_to_numpy, numpy_to_image
 
-from ..core.simulation import SCENE_KINDS, Rig, SceneRenderer, make_scene, scene_from_file
+from ..core.scenes import SCENE_KINDS, make_scene, scene_from_file
+from ..core.simulation import Rig, SceneRenderer
 from .common import declare, run
 from .health import Health
+
 
 class FringeCameraSim(Node):
     def __init__(self, **kwargs):
         super().__init__("fringe_camera_sim", **kwargs)
         self.health = Health(self)
         defaults = Rig()
-        self.rig = Rig(noise_sigma=declare(self, "noise_sigma", defaults.noise_sigma, "camera noise, counts", True),
-                       blur_sigma_px=declare(self, "blur_sigma_px", defaults.blur_sigma_px, "defocus blur, pixels", True),
-                       projector_width=declare(self, "projector_width", defaults.projector_width, "pixels", True),
-                       projector_height=declare(self, "projector_height", defaults.projector_height, "pixels", True),
-                       projector_gamma=declare(self, "projector_gamma", defaults.projector_gamma, "", True))
+        self.rig = Rig(
+            noise_sigma=declare(self, "noise_sigma", defaults.noise_sigma, "camera noise, counts", True),
+            blur_sigma_px=declare(self, "blur_sigma_px", defaults.blur_sigma_px, "defocus blur, pixels", True),
+            projector_width=declare(self, "projector_width", defaults.projector_width, "pixels", True),
+            projector_height=declare(self, "projector_height", defaults.projector_height, "pixels", True),
+            projector_gamma=declare(self, "projector_gamma", defaults.projector_gamma, "", True),
+        )
         scene = declare(self, "scene", "sculpture", f"one of {', '.join(SCENE_KINDS)}, or a height map file (mm)", True)
         seed = declare(self, "seed", 0, "scene and noise seed", True)
         map_kind = declare(self, "map_kind", "height", "what a scene file holds: height or depth (mm)", True)
-        self.scene = make_scene(self.rig, scene, seed) if scene in SCENE_KINDS else scene_from_file(self.rig, scene, map_kind)
+        self.scene = (
+            make_scene(self.rig, scene, seed) if scene in SCENE_KINDS else scene_from_file(self.rig, scene, map_kind)
+        )
         self.renderer = SceneRenderer(self.rig, self.scene)
         self.rng = np.random.default_rng(seed)
         cam = self.rig.camera()
@@ -53,8 +61,11 @@ class FringeCameraSim(Node):
             return
         w, h = self.rig.projector_width, self.rig.projector_height
         if pattern.shape not in ((1, w), (h, 1), (h, w)):
-            self.health.report("patterns rejected", f"pattern ignored: a {pattern.shape[1]}x{pattern.shape[0]} image is "
-                                                    f"neither a line nor the image of a {w}x{h} projector")
+            self.health.report(
+                "patterns rejected",
+                f"pattern ignored: a {pattern.shape[1]}x{pattern.shape[0]} image is "
+                f"neither a line nor the image of a {w}x{h} projector",
+            )
             return
         image = self.renderer.image(pattern, 255 if pattern.dtype == np.uint8 else 65535, self.rng)
         header = Header(stamp=msg.header.stamp, frame_id=Frames.CAMERA)

@@ -6,6 +6,7 @@ came in and went out, what was dropped or rejected and why, latency percentiles,
 message says what: the newest three kinds of problem); counters are totals since start, rates are over
 the last report.
 """
+
 from __future__ import annotations
 
 import re
@@ -69,8 +70,13 @@ class Health:
         values.update(self.facts)
         problems = list(self.problems.values())[-3:]
         level, message = (DiagnosticStatus.WARN, "; ".join(problems)) if problems else (DiagnosticStatus.OK, "ok")
-        return DiagnosticStatus(level=level, name=self.node.get_fully_qualified_name(), message=message,
-                                hardware_id=HARDWARE_ID, values=[KeyValue(key=k, value=v) for k, v in values.items()])
+        return DiagnosticStatus(
+            level=level,
+            name=self.node.get_fully_qualified_name(),
+            message=message,
+            hardware_id=HARDWARE_ID,
+            values=[KeyValue(key=k, value=v) for k, v in values.items()],
+        )
 
     def publish(self) -> None:
         """Publish the report and start the next window."""

@@ -5,6 +5,7 @@ fringes (1 x L for vertical fringes, L x 1 for horizontal), the single-shot comp
 of each sequence, unless single_shot:=paper) as the full image, stamped with the time it is shown. Continuously
 by default; with continuous:=false, each call of ~/capture (std_srvs/Trigger) shows one sequence.
 """
+
 from __future__ import annotations
 
 from builtin_interfaces.msg import Time
@@ -25,18 +26,29 @@ class PatternProjector(Node):
         super().__init__("pattern_projector", **kwargs)
         self.health = Health(self)
         self.patterns = PatternSet(
-            frequencies=tuple(declare(self, "frequencies", [1, 4, 20, 100], "fringes across the pattern, increasing from 1", True)),
+            frequencies=tuple(
+                declare(self, "frequencies", [1, 4, 20, 100], "fringes across the pattern, increasing from 1", True)
+            ),
             steps=declare(self, "steps", 4, "phase shifts per frequency (>= 3)", True),
             width=declare(self, "width", 1280, "projector width, pixels", True),
             height=declare(self, "height", 800, "projector height, pixels", True),
             orientation=declare(self, "orientation", "vertical", "vertical or horizontal fringes", True),
             bit_depth=declare(self, "bit_depth", 8, "8 or 16", True),
             gamma=declare(self, "gamma", 2.2, "projector gamma the patterns pre-compensate", True),
-            single_shot=declare(self, "single_shot", "composite", f"single-shot frame: {' or '.join(SINGLE_SHOT_KINDS)} "
-                                "(composite: one more frame; paper: the first step of the highest frequency)", True))
+            single_shot=declare(
+                self,
+                "single_shot",
+                "composite",
+                f"single-shot frame: {' or '.join(SINGLE_SHOT_KINDS)} "
+                "(composite: one more frame; paper: the first step of the highest frequency)",
+                True,
+            ),
+        )
         self.rate = declare(self, "rate", 30.0, "patterns per second")
         check_positive("rate", self.rate)
-        self.continuous = declare(self, "continuous", True, "show sequences over and over; false: one per ~/capture call")
+        self.continuous = declare(
+            self, "continuous", True, "show sequences over and over; false: one per ~/capture call"
+        )
         on_set(self, {"rate": check_positive})
         self.add_post_set_parameters_callback(self._after_set)
         self.lines = pattern_images(self.patterns)
@@ -45,8 +57,9 @@ class PatternProjector(Node):
         self.index = 0
         self.queued = 0
         self.timer = self.create_timer(1.0 / self.rate, self._on_tick)
-        self.get_logger().info(f"{self.patterns.count} patterns at {self.rate:g} Hz, "
-                               f"{'continuous' if self.continuous else 'on ~/capture'}")
+        self.get_logger().info(
+            f"{self.patterns.count} patterns at {self.rate:g} Hz, {'continuous' if self.continuous else 'on ~/capture'}"
+        )
 
     def _after_set(self, params):
         for p in params:

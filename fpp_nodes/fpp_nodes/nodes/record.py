@@ -6,6 +6,7 @@ outputs:=true also points, depth/image and depth/camera_info, to look at (Foxglo
 those anew. Parameters: output (bag folder, must not exist), storage (mcap | sqlite3), calibration
 (file), outputs (bool).
 """
+
 from __future__ import annotations
 
 import signal
@@ -27,7 +28,9 @@ class Record(Node):
         super().__init__("record", **kwargs)
         output = declare(self, "output", time.strftime("bags/fpp_%Y%m%d_%H%M%S"), "bag folder to create", True)
         storage = declare(self, "storage", "mcap", "mcap or sqlite3", True)
-        outputs = declare(self, "outputs", False, "also record points, depth/image, depth/camera_info (to look at)", True)
+        outputs = declare(
+            self, "outputs", False, "also record points, depth/image, depth/camera_info (to look at)", True
+        )
         calibration, _ = load_calibration(self)
         self.writer = BagWriter(output, storage)
         self.writer.write_calibration(calibration.to_yaml(), time.time_ns())
@@ -35,8 +38,13 @@ class Record(Node):
         topics = STREAM_TOPICS | (OUTPUT_TOPICS if outputs else {})
         for topic, msgtype in topics.items():
             name = topic.lstrip("/")  # relative, so a namespace applies
-            self.create_subscription(MESSAGE_TYPES[msgtype], name,
-                                     lambda data, t=topic, m=msgtype: self._write(t, m, data), Qos.FRAMES, raw=True)
+            self.create_subscription(
+                MESSAGE_TYPES[msgtype],
+                name,
+                lambda data, t=topic, m=msgtype: self._write(t, m, data),
+                Qos.FRAMES,
+                raw=True,
+            )
         self.get_logger().info(f"recording {', '.join(topics)} to {output} ({storage})")
 
     def _write(self, topic: str, msgtype: str, data: bytes):

@@ -8,6 +8,7 @@ Playing starts once every topic has a subscriber, or after start_delay seconds (
 discovery completes would be lost). Parameters: bag (path), rate (speed factor), loop (bool),
 start_delay (s).
 """
+
 from __future__ import annotations
 
 import sys
@@ -30,7 +31,9 @@ class Replay(Node):
         path = declare(self, "bag", "", "bag folder to play", True)
         self.rate = declare(self, "rate", 1.0, "playback speed factor", True)
         self.loop = declare(self, "loop", False, "play over and over", True)
-        self.start_delay = declare(self, "start_delay", 10.0, "longest wait for every topic to have a subscriber, s", True)
+        self.start_delay = declare(
+            self, "start_delay", 10.0, "longest wait for every topic to have a subscriber, s", True
+        )
         check_positive("rate", self.rate)
         if not path:
             raise ValueError("parameter 'bag' is required")
@@ -38,10 +41,14 @@ class Replay(Node):
         unknown = {m for _, m, _, _ in self.recording.messages} - set(MESSAGE_TYPES)
         if unknown:
             raise BagError(f"{path} holds message types replay does not publish: {', '.join(sorted(unknown))}")
-        self.publishers_ = {topic: self.create_publisher(MESSAGE_TYPES[msgtype], topic.lstrip("/"), Qos.FRAMES)
-                            for topic, msgtype, _, _ in self.recording.messages}
+        self.publishers_ = {
+            topic: self.create_publisher(MESSAGE_TYPES[msgtype], topic.lstrip("/"), Qos.FRAMES)
+            for topic, msgtype, _, _ in self.recording.messages
+        }
         if self.recording.calibration_yaml is not None:
-            self.create_publisher(String, Topics.CALIBRATION, Qos.LATCHED).publish(String(data=self.recording.calibration_yaml))
+            self.create_publisher(String, Topics.CALIBRATION, Qos.LATCHED).publish(
+                String(data=self.recording.calibration_yaml)
+            )
         self.get_logger().info(f"{path}: {len(self.recording.messages)} messages on {', '.join(self.publishers_)}")
 
     def play(self):

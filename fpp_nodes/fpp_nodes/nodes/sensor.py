@@ -2,6 +2,7 @@
 pattern_projector -> fringe_camera_sim -> capture_sequence -> fpp_depth (multi-shot: depth/image,
 points) and, side by side, cnn_depth in the cnn namespace (single-shot on each sequence's
 fringe_single image: cnn/depth/image, cnn/points)."""
+
 from .capture_sequence import CaptureSequence
 from .cnn_depth import CnnDepth
 from .common import run

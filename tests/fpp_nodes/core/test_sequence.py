@@ -26,13 +26,16 @@ def test_complete_sequences_in_order():
     assert a.stats.completed == 2 and a.stats.dropped == 0
 
 
-@pytest.mark.parametrize("indices, reason", [
-    ([0, 1, 3, 0, 1, 2, 3], "missing frame"),
-    ([0, 1, 1, 2, 3, 0, 1, 2, 3], "duplicated frame"),
-    ([0, 2, 1, 3, 0, 1, 2, 3], "missing frame"),
-    ([0, 1, 2, 1, 0, 1, 2, 3], "out of order frame"),
-    ([0, 1, 0, 1, 2, 3], "incomplete"),  # the projector restarted its sequence
-])
+@pytest.mark.parametrize(
+    "indices, reason",
+    [
+        ([0, 1, 3, 0, 1, 2, 3], "missing frame"),
+        ([0, 1, 1, 2, 3, 0, 1, 2, 3], "duplicated frame"),
+        ([0, 2, 1, 3, 0, 1, 2, 3], "missing frame"),
+        ([0, 1, 2, 1, 0, 1, 2, 3], "out of order frame"),
+        ([0, 1, 0, 1, 2, 3], "incomplete"),  # the projector restarted its sequence
+    ],
+)
 def test_broken_sequences_are_dropped_never_mixed(indices, reason):
     a = SequenceAssembler(4)
     done, reasons = feed(a, indices)

@@ -1,7 +1,7 @@
 """The sensor and a robot on two hosts, joined by one network link.
 
 The composed sensor (`ros2 run fpp_nodes sensor`) runs in one network namespace and a robot
-(tests/cloud_probe.py, its own process) in another. Each namespace has its own network stack: only
+(cloud_probe.py beside this file, its own process) in another. Each namespace has its own network stack: only
 `lo` and one end of a veth pair, with 10.201.N.1/24 and 10.201.N.2/24 on that link only (no route
 anywhere else), so the two are two hosts on one Ethernet segment. Fast DDS runs with its default
 discovery (SPDP over UDP multicast, no static peers) and UDPv4 as its only transport
@@ -17,6 +17,7 @@ The namespaces, the veth pair and both processes are the test's own and are remo
 whatever happens. Where namespaces cannot be made (no CAP_NET_ADMIN, no `ip`, no veth), the test is
 skipped with the reason.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -27,12 +28,14 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 
 from fpp_msgs_py import Frames
 from fpp_nodes.processes import start_process, stop_process
-from rosgraph import ROOT, fresh_domain_id, ros_env
+
+from rosgraph import fresh_domain_id, ros_env
 
 TIMEOUT_S = 120  # for the robot to see its clouds; the test ends within about TIMEOUT_S + 45 s
 _made = itertools.count()
@@ -55,7 +58,7 @@ class Host:
         return [link["ifname"] for link in json.loads(ip("-j", "-n", self.netns, "link", "show").stdout)]
 
     def rx_bytes(self) -> int:
-        link, = json.loads(ip("-j", "-s", "-n", self.netns, "link", "show", "dev", self.veth).stdout)
+        (link,) = json.loads(ip("-j", "-s", "-n", self.netns, "link", "show", "dev", self.veth).stdout)
         return link["stats64"]["rx"]["bytes"]
 
 
@@ -75,17 +78,23 @@ def two_hosts():
             if r.returncode:
                 pytest.skip(f"cannot make a network namespace here: ip netns add: {r.stderr.strip()}")
             made.append(host.netns)
-        steps = [("link", "add", a.veth, "type", "veth", "peer", "name", b.veth),
-                 ("link", "set", a.veth, "netns", a.netns), ("link", "set", b.veth, "netns", b.netns)]
+        steps = [
+            ("link", "add", a.veth, "type", "veth", "peer", "name", b.veth),
+            ("link", "set", a.veth, "netns", a.netns),
+            ("link", "set", b.veth, "netns", b.netns),
+        ]
         for host in (a, b):
-            steps += [("-n", host.netns, "addr", "add", f"{host.address}/24", "dev", host.veth),
-                      ("-n", host.netns, "link", "set", "lo", "up"),
-                      ("-n", host.netns, "link", "set", host.veth, "up")]
+            steps += [
+                ("-n", host.netns, "addr", "add", f"{host.address}/24", "dev", host.veth),
+                ("-n", host.netns, "link", "set", "lo", "up"),
+                ("-n", host.netns, "link", "set", host.veth, "up"),
+            ]
         for step in steps:
             r = ip(*step)
             if r.returncode:
-                pytest.skip(f"cannot join network namespaces with a veth pair here: ip {' '.join(step)}: "
-                            f"{r.stderr.strip()}")
+                pytest.skip(
+                    f"cannot join network namespaces with a veth pair here: ip {' '.join(step)}: {r.stderr.strip()}"
+                )
         r = subprocess.run(a.exec_args("true"), capture_output=True, text=True, timeout=30)
         if r.returncode:
             pytest.skip(f"cannot run a process in a network namespace here: ip netns exec: {r.stderr.strip()}")
@@ -100,17 +109,42 @@ def test_discovery_and_large_clouds_between_two_hosts(two_hosts, tmp_path):
     sensor_host, robot_host = two_hosts
     for host in two_hosts:  # lo and the link: nothing else leads out of either host
         assert sorted(host.links()) == sorted(["lo", host.veth])
-    env = {k: v for k, v in ros_env().items()
-           if k not in ("ROS_LOCALHOST_ONLY", "ROS_STATIC_PEERS", "FASTRTPS_DEFAULT_PROFILES_FILE")}
-    env.update(ROS_DOMAIN_ID=str(fresh_domain_id()), ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET",
-               FASTDDS_BUILTIN_TRANSPORTS="UDPv4", PYTHONUNBUFFERED="1", RCUTILS_LOGGING_BUFFERED_STREAM="0")
+    env = {
+        k: v
+        for k, v in ros_env().items()
+        if k not in ("ROS_LOCALHOST_ONLY", "ROS_STATIC_PEERS", "FASTRTPS_DEFAULT_PROFILES_FILE")
+    }
+    env.update(
+        ROS_DOMAIN_ID=str(fresh_domain_id()),
+        ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET",
+        FASTDDS_BUILTIN_TRANSPORTS="UDPv4",
+        PYTHONUNBUFFERED="1",
+        RCUTILS_LOGGING_BUFFERED_STREAM="0",
+    )
     rx_before = robot_host.rx_bytes()
     logs = {name: open(tmp_path / f"{name}.log", "w+") for name in ("sensor", "robot", "robot-stderr")}
-    sensor = start_process(sensor_host.exec_args("ros2", "run", "fpp_nodes", "sensor", "--ros-args",
-                                                 "-p", "scene:=objects", "-p", "seed:=3"), env, logs["sensor"])
-    robot = start_process(robot_host.exec_args(sys.executable, str(ROOT / "tests" / "cloud_probe.py"),
-                                               "--clouds", "2", "--depths", "1", "--timeout", str(TIMEOUT_S)),
-                          env, logs["robot"], logs["robot-stderr"])
+    sensor = start_process(
+        sensor_host.exec_args(
+            "ros2", "run", "fpp_nodes", "sensor", "--ros-args", "-p", "scene:=objects", "-p", "seed:=3"
+        ),
+        env,
+        logs["sensor"],
+    )
+    robot = start_process(
+        robot_host.exec_args(
+            sys.executable,
+            str(Path(__file__).with_name("cloud_probe.py")),
+            "--clouds",
+            "2",
+            "--depths",
+            "1",
+            "--timeout",
+            str(TIMEOUT_S),
+        ),
+        env,
+        logs["robot"],
+        logs["robot-stderr"],
+    )
     try:
         deadline = time.monotonic() + TIMEOUT_S + 30  # the robot gives up by itself after TIMEOUT_S
         while robot.poll() is None and sensor.poll() is None and time.monotonic() < deadline:
@@ -124,13 +158,16 @@ def test_discovery_and_large_clouds_between_two_hosts(two_hosts, tmp_path):
             text[name] = log.read()
             log.close()
     rx = robot_host.rx_bytes() - rx_before
-    context = f"robot stderr:\n{text['robot-stderr'][-3000:]}\nsensor (exit {sensor.returncode}):\n" \
-              f"{text['sensor'][-3000:]}"
+    context = (
+        f"robot stderr:\n{text['robot-stderr'][-3000:]}\nsensor (exit {sensor.returncode}):\n{text['sensor'][-3000:]}"
+    )
     lines = [line for line in text["robot"].splitlines() if line.startswith("{")]
     assert lines, f"the robot printed no summary (exit {robot.returncode})\n{context}"
     seen = json.loads(lines[-1])
-    assert seen["ok"], f"in {TIMEOUT_S} s the robot saw {len(seen['clouds'])} clouds, {len(seen['depths'])} " \
-                       f"depth images, nodes {seen['nodes']}\n{context}"
+    assert seen["ok"], (
+        f"in {TIMEOUT_S} s the robot saw {len(seen['clouds'])} clouds, {len(seen['depths'])} "
+        f"depth images, nodes {seen['nodes']}\n{context}"
+    )
     # discovery over the link: the sensor's nodes, and the cloud's publisher, seen from the other host
     assert {"/fpp_depth", "/capture_sequence", "/pattern_projector"} <= set(seen["nodes"])
     assert {"node": "/fpp_depth", "topic_type": "sensor_msgs/msg/PointCloud2"} in seen["publishers_of_points"]

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from fpp_nodes.core.phase import wrapped_phase
-from fpp_nodes.core.simulation import (Rig, SimulationError, make_scene, plane_scene, render,
-                                       scene_from_file)
+from fpp_nodes.core.scenes import make_scene, plane_scene, scene_from_file
+from fpp_nodes.core.simulation import Rig, SimulationError, render
 
 
 def analytic_plane_phase(rig: Rig, patterns, depth_mm):

@@ -1,15 +1,16 @@
 """The composite single-shot pattern: its calibration and its decoding, against the simulator's geometry."""
+
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from fpp_nodes.core.calibration import Calibration, CalibrationError, pixel_grid
+from fpp_nodes.core.patterns import CODE_ORDERS
 from fpp_nodes.core.phase import PhaseError
 from fpp_nodes.core.reconstruct import CompositeDecoder
-from fpp_nodes.core.patterns import CODE_ORDERS
-from fpp_nodes.core.simulation import (FAMILY_NAMES, SURFACE_DEPTH_MM, SceneRenderer, make_scene, plane_scene,
-                                       random_rig)
+from fpp_nodes.core.scenes import FAMILY_NAMES, SURFACE_DEPTH_MM, make_scene, plane_scene
+from fpp_nodes.core.simulation import SceneRenderer, random_rig
 
 
 def exact_phases(renderer, patterns):
@@ -81,8 +82,12 @@ def test_the_code_tells_every_two_orders_of_the_working_range_apart(calibration)
 def test_a_working_range_wider_than_the_code_is_refused(calibration):
     with pytest.raises(PhaseError, match="fringe orders"):
         CompositeDecoder(calibration, (900.0, 1500.0))
-    paper = Calibration(calibration.camera, calibration.model, replace(calibration.patterns, single_shot="paper"),
-                        calibration.reference_depth_mm)
+    paper = Calibration(
+        calibration.camera,
+        calibration.model,
+        replace(calibration.patterns, single_shot="paper"),
+        calibration.reference_depth_mm,
+    )
     with pytest.raises(PhaseError, match="code model"):
         CompositeDecoder(paper, SURFACE_DEPTH_MM)
 

@@ -1,5 +1,6 @@
 """Bad input and faults, over DDS with the nodes in their own processes: each shows a clear error (in the
 log and on /diagnostics), a node that stays up, and nothing good lost."""
+
 import array
 import os
 import signal
@@ -19,8 +20,10 @@ from fpp_msgs_py import Frames, Qos, Topics, cloud_to_xyz, header_at, image_to_n
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.model import default_model_path
 from fpp_nodes.core.patterns import pattern_images
+from fpp_nodes.core.scenes import make_scene
 from fpp_nodes.core.sequence import ShownPatterns
-from fpp_nodes.core.simulation import Rig, make_scene, render
+from fpp_nodes.core.simulation import Rig, render
+
 from rosgraph import Diagnostics
 from test_ros_sensor import check_clouds, collect, rmse_mm
 
@@ -37,11 +40,13 @@ def bad_frames(good: np.ndarray) -> dict:
     nan = good.astype(np.float32) / 255
     nan[100:110, 200:300] = np.nan
     nan[0, 0] = np.inf
-    return {"wrong encoding": (wrong_encoding, "encoding 'rgb8' is not supported"),
-            "wrong size": (numpy_to_image(good[::2, ::2].copy()), "320x240"),
-            "zero-size": (empty, "image is empty"),
-            "truncated": (truncated, "image data is 153600 bytes"),
-            "NaN and Inf": (numpy_to_image(nan), None)}  # what is said depends on the path
+    return {
+        "wrong encoding": (wrong_encoding, "encoding 'rgb8' is not supported"),
+        "wrong size": (numpy_to_image(good[::2, ::2].copy()), "320x240"),
+        "zero-size": (empty, "image is empty"),
+        "truncated": (truncated, "image data is 153600 bytes"),
+        "NaN and Inf": (numpy_to_image(nan), None),
+    }  # what is said depends on the path
 
 
 SCULPTURE_COVERAGE = 0.85  # the shipped model's coverage of this sculpture's lit pixels: measured 0.93
@@ -64,15 +69,25 @@ def test_bad_frames_into_the_multi_shot_path(ros_graph):
     calibration_pub = robot.node.create_publisher(String, Topics.CALIBRATION, Qos.LATCHED)
     clouds = collect(robot, Topics.POINTS, PointCloud2)
     diagnostics = Diagnostics(robot)
-    assert robot.spin_until(lambda: pattern_pub.get_subscription_count() and camera_pub.get_subscription_count()
-                            and robot.node.count_publishers(Topics.POINTS), 30)
+    assert robot.spin_until(
+        lambda: (
+            pattern_pub.get_subscription_count()
+            and camera_pub.get_subscription_count()
+            and robot.node.count_publishers(Topics.POINTS)
+        ),
+        30,
+    )
     time.sleep(1.0)  # let discovery settle both ways
     calibration_pub.publish(String(data="format: fpp_calibration\nversion: 1\nmodel: [1, 2"))  # corrupt: ignored
     good = [capture.images[i] for i in range(patterns.count)]
     bad = bad_frames(capture.images[5])
     plays = {"good": good}
-    plays.update({kind: [numpy_to_image(img) for img in good[:5]] + [msg] + [numpy_to_image(img) for img in good[6:]]
-                  for kind, (msg, _) in bad.items()})
+    plays.update(
+        {
+            kind: [numpy_to_image(img) for img in good[:5]] + [msg] + [numpy_to_image(img) for img in good[6:]]
+            for kind, (msg, _) in bad.items()
+        }
+    )
     plays["dark"] = [np.zeros_like(img) for img in good]
     plays["saturated"] = [np.full_like(img, 255) for img in good]
     plays["good again"] = good
@@ -88,9 +103,14 @@ def test_bad_frames_into_the_multi_shot_path(ros_graph):
             t += 33_000_000
             robot.spin_until(lambda: False, 0.01)
     assert robot.spin_until(lambda: len(clouds) >= 4, 60), procs.logs()
-    assert robot.spin_until(lambda: diagnostics.counter("/capture_sequence", "frames rejected") >= 5
-                            and diagnostics.counter("/capture_sequence", "sequences dropped") >= 5
-                            and diagnostics.counter("/fpp_depth", "sequences without fringes") >= 2, 60), procs.logs()
+    assert robot.spin_until(
+        lambda: (
+            diagnostics.counter("/capture_sequence", "frames rejected") >= 5
+            and diagnostics.counter("/capture_sequence", "sequences dropped") >= 5
+            and diagnostics.counter("/fpp_depth", "sequences without fringes") >= 2
+        ),
+        60,
+    ), procs.logs()
     robot.spin_until(lambda: False, 1.0)  # a cloud that should not exist would have arrived by now
     stamps = [stamp_ns(c.header.stamp) for c in clouds]
     assert stamps == [first_stamps[k] for k in ("good", "dark", "saturated", "good again")], procs.logs()
@@ -119,12 +139,23 @@ def test_bad_frames_into_the_single_shot_path(ros_graph):
     camera_pub = robot.node.create_publisher(Image, "/cnn/" + Topics.CAMERA_IMAGE, Qos.FRAMES)
     depths = collect(robot, "/cnn/" + Topics.DEPTH, Image)
     diagnostics = Diagnostics(robot)
-    assert robot.spin_until(lambda: camera_pub.get_subscription_count() and robot.node.count_publishers(
-        "/cnn/" + Topics.DEPTH) and "/cnn/cnn_depth" in diagnostics.latest, 60), procs.logs()
+    assert robot.spin_until(
+        lambda: (
+            camera_pub.get_subscription_count()
+            and robot.node.count_publishers("/cnn/" + Topics.DEPTH)
+            and "/cnn/cnn_depth" in diagnostics.latest
+        ),
+        60,
+    ), procs.logs()
     time.sleep(1.0)
     inputs = {kind: msg for kind, (msg, _) in bad_frames(good).items()}
-    inputs.update({"dark": numpy_to_image(np.zeros_like(good)), "saturated": numpy_to_image(np.full_like(good, 255)),
-                   "good": numpy_to_image(good)})
+    inputs.update(
+        {
+            "dark": numpy_to_image(np.zeros_like(good)),
+            "saturated": numpy_to_image(np.full_like(good, 255)),
+            "good": numpy_to_image(good),
+        }
+    )
     for n, (kind, msg) in enumerate(inputs.items(), start=1):
         msg.header = header_at(n * 1_000_000_000, Frames.CAMERA)
         camera_pub.publish(msg)  # one at a time: the node keeps only the newest frame
@@ -139,8 +170,13 @@ def test_bad_frames_into_the_single_shot_path(ros_graph):
     assert np.count_nonzero(np.abs(fine[ok] - truth_m[ok]) > 0.001) <= 0.01 * ok.sum()  # metres: 1 mm
     assert node.poll() is None
     logs = procs.logs()
-    for message in ("encoding 'rgb8' is not supported", "takes 640x480 images", "image is empty",
-                    "image data is 153600 bytes", "mono8 or mono16"):
+    for message in (
+        "encoding 'rgb8' is not supported",
+        "takes 640x480 images",
+        "image is empty",
+        "image data is 153600 bytes",
+        "mono8 or mono16",
+    ):
         assert message in logs
     robot.spin_until(lambda: diagnostics.value("/cnn/cnn_depth", "frames without fringes") == "2", 60)
     assert diagnostics.value("/cnn/cnn_depth", "frames rejected") == "5"
@@ -158,8 +194,9 @@ def test_a_camera_that_dies_mid_sequence_and_comes_back(ros_graph):
     truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
     clouds = collect(robot, Topics.POINTS, PointCloud2)
     shown = ShownPatterns(Calibration.load(SHIPPED_CALIBRATION).patterns, max_offset_ns=0)
-    robot.node.create_subscription(Image, Topics.PATTERN, lambda m: shown.add(stamp_ns(m.header.stamp), image_to_numpy(m)),
-                                   Qos.FRAMES)
+    robot.node.create_subscription(
+        Image, Topics.PATTERN, lambda m: shown.add(stamp_ns(m.header.stamp), image_to_numpy(m)), Qos.FRAMES
+    )
     diagnostics = Diagnostics(robot)
     check_clouds(robot, clouds, truth)
     # mid-sequence (killed at a sequence's end it would break none), no goodbye: a crash or a pulled cable
@@ -171,18 +208,23 @@ def test_a_camera_that_dies_mid_sequence_and_comes_back(ros_graph):
     procs.start("fringe_camera_sim")
     assert robot.spin_until(lambda: len(clouds) >= before + 2, 60), procs.logs()
     check_clouds(robot, clouds[before:], truth)
-    assert robot.spin_until(lambda: diagnostics.counter("/capture_sequence", "sequences dropped") >= 1, 60), procs.logs()
+    assert robot.spin_until(lambda: diagnostics.counter("/capture_sequence", "sequences dropped") >= 1, 60), (
+        procs.logs()
+    )
 
 
 def test_a_slow_subscriber_does_not_hold_back_a_fast_one(ros_graph):
     """A subscriber that takes a second per cloud gets the newest ones it can; the sensor and a fast
     subscriber go on at full rate (KEEP_LAST history: no backlog, no blocking)."""
     from rosgraph import ProbeNode
+
     procs, robot = ros_graph
     procs.start("sensor")
     slow = ProbeNode(robot.context.get_domain_id(), "slow_robot")
     slow_got = []
-    slow.node.create_subscription(PointCloud2, Topics.POINTS, lambda m: (slow_got.append(m), time.sleep(1.0)), Qos.LARGE)
+    slow.node.create_subscription(
+        PointCloud2, Topics.POINTS, lambda m: (slow_got.append(m), time.sleep(1.0)), Qos.LARGE
+    )
     stop = threading.Event()
     thread = threading.Thread(target=lambda: [slow.executor.spin_once(0.05) for _ in iter(stop.is_set, True)])
     thread.start()
@@ -205,10 +247,13 @@ def test_a_slow_subscriber_does_not_hold_back_a_fast_one(ros_graph):
     assert diagnostics.value("/capture_sequence", "sequences dropped") == "0"
 
 
-@pytest.mark.parametrize("args, message", [
-    (("-p", "frequencies:=[1, 20, 4]"), "increasing"),
-    (("-p", "rate:=-30.0"), "rate must be > 0"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (("-p", "frequencies:=[1, 20, 4]"), "increasing"),
+        (("-p", "rate:=-30.0"), "rate must be > 0"),
+    ],
+)
 def test_out_of_range_parameters_at_start_are_one_fatal_line(ros_graph, args, message):
     procs, _ = ros_graph
     proc = procs.start("pattern_projector", *args)
@@ -240,11 +285,14 @@ def test_out_of_range_parameters_at_runtime_are_refused_with_the_reason(ros_grap
     assert robot.spin_until(lambda: len(shown) >= 20, 60) and projector.poll() is None
 
 
-@pytest.mark.parametrize("damage, message", [
-    (lambda path: None, "No such file"),
-    (lambda path: path.write_text("model: [1, 2"), "not valid YAML"),
-    (lambda path: path.write_text(SHIPPED_CALIBRATION.read_text()[:400]), "calibration is missing patterns"),
-])
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda path: None, "No such file"),
+        (lambda path: path.write_text("model: [1, 2"), "not valid YAML"),
+        (lambda path: path.write_text(SHIPPED_CALIBRATION.read_text()[:400]), "calibration is missing patterns"),
+    ],
+)
 def test_a_missing_or_corrupt_calibration_file_is_one_fatal_line(ros_graph, tmp_path, damage, message):
     procs, _ = ros_graph
     path = tmp_path / "calibration.yaml"
@@ -255,13 +303,14 @@ def test_a_missing_or_corrupt_calibration_file_is_one_fatal_line(ros_graph, tmp_
     assert "[FATAL]" in logs and message in logs and "Traceback" not in logs, logs
 
 
-
 def corrupt_model(folder: Path) -> Path:
     """The shipped model cut short, with a card that vouches for the cut file: onnxruntime must refuse it."""
     import hashlib
+
     import yaml
+
     data = Path(default_model_path()).read_bytes()
-    data = data[:len(data) // 2]
+    data = data[: len(data) // 2]
     card = yaml.safe_load(Path(default_model_path()).with_suffix(".yaml").read_text())
     card["sha256"] = hashlib.sha256(data).hexdigest()
     (folder / "m.onnx").write_bytes(data)
@@ -271,7 +320,9 @@ def corrupt_model(folder: Path) -> Path:
 
 def model_for_another_camera(folder: Path) -> Path:
     import shutil
+
     import yaml
+
     shutil.copy(default_model_path(), folder / "m.onnx")
     card = yaml.safe_load(Path(default_model_path()).with_suffix(".yaml").read_text())
     card["input"]["camera"] = {"width": 320, "height": 240}
@@ -281,6 +332,7 @@ def model_for_another_camera(folder: Path) -> Path:
 
 def tampered_model(folder: Path) -> Path:
     import shutil
+
     shutil.copy(default_model_path(), folder / "m.onnx")
     shutil.copy(Path(default_model_path()).with_suffix(".yaml"), folder / "m.yaml")
     with open(folder / "m.onnx", "r+b") as f:
@@ -289,12 +341,15 @@ def tampered_model(folder: Path) -> Path:
     return folder / "m.onnx"
 
 
-@pytest.mark.parametrize("make, message", [
-    (lambda folder: folder / "missing.onnx", "does not exist"),
-    (corrupt_model, "cannot load model"),
-    (tampered_model, "does not match its card"),
-    (model_for_another_camera, "trained for 320x240 images"),
-])
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda folder: folder / "missing.onnx", "does not exist"),
+        (corrupt_model, "cannot load model"),
+        (tampered_model, "does not match its card"),
+        (model_for_another_camera, "trained for 320x240 images"),
+    ],
+)
 def test_a_missing_corrupt_or_mismatched_model_is_one_fatal_line(ros_graph, tmp_path, make, message):
     procs, _ = ros_graph
     proc = procs.start("cnn_depth", "-p", f"model:={make(tmp_path)}")

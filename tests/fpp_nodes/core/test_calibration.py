@@ -3,7 +3,8 @@ import pytest
 import yaml
 
 from fpp_nodes.core.calibration import Calibration, CalibrationError, RationalModel, back_project, pixel_grid
-from fpp_nodes.core.simulation import plane_scene, render
+from fpp_nodes.core.scenes import plane_scene
+from fpp_nodes.core.simulation import render
 from fpp_nodes.core.workflow import calibrate_from_planes
 
 
@@ -19,8 +20,12 @@ def test_rig_model_maps_phase_back_to_depth(ideal_rig, ideal_patterns):
 
 
 def test_calibration_from_noise_free_planes_recovers_the_rendering_coefficients(ideal_rig, ideal_patterns):
-    stacks = [render(ideal_rig, plane_scene(ideal_rig, z), ideal_patterns).images for z in (1100, 1150, 1200, 1250, 1300)]
-    calibration, residuals = calibrate_from_planes(stacks, [1100, 1150, 1200, 1250, 1300], ideal_rig.camera(), ideal_patterns)
+    stacks = [
+        render(ideal_rig, plane_scene(ideal_rig, z), ideal_patterns).images for z in (1100, 1150, 1200, 1250, 1300)
+    ]
+    calibration, residuals = calibrate_from_planes(
+        stacks, [1100, 1150, 1200, 1250, 1300], ideal_rig.camera(), ideal_patterns
+    )
     true = ideal_rig.true_model(ideal_patterns)
     fitted = calibration.model
     # compare every term at its largest value in the image, relative to the whole numerator/denominator;
@@ -50,16 +55,19 @@ def test_calibration_file_round_trips(calibration, tmp_path):
     assert yaml.safe_load(path.read_text())["version"] == 1
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda d: d.pop("model"), "missing model"),
-    (lambda d: d["camera"].pop("fx"), "missing 'fx'"),
-    (lambda d: d.update(version=99), "version 99"),
-    (lambda d: d.update(format="something"), "not a calibration file"),
-    (lambda d: d["model"].update(c=[1.0, 2.0]), "12 \\+ 12"),
-    (lambda d: d["model"]["d"].__setitem__(3, "x"), "malformed"),
-    (lambda d: d["patterns"].update(steps=2), "steps must be >= 3"),
-    (lambda d: d["camera"].update(fx=-5), "focal lengths"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda d: d.pop("model"), "missing model"),
+        (lambda d: d["camera"].pop("fx"), "missing 'fx'"),
+        (lambda d: d.update(version=99), "version 99"),
+        (lambda d: d.update(format="something"), "not a calibration file"),
+        (lambda d: d["model"].update(c=[1.0, 2.0]), "12 \\+ 12"),
+        (lambda d: d["model"]["d"].__setitem__(3, "x"), "malformed"),
+        (lambda d: d["patterns"].update(steps=2), "steps must be >= 3"),
+        (lambda d: d["camera"].update(fx=-5), "focal lengths"),
+    ],
+)
 def test_malformed_calibration_files_are_clear_errors(calibration, tmp_path, edit, message):
     data = calibration.to_dict()
     edit(data)
@@ -93,8 +101,11 @@ def test_back_projection_follows_the_optical_frame(calibration):
     depth[0, 0] = np.nan
     xyz = back_project(depth, cam)
     assert np.isnan(xyz[0, 0]).all()
-    np.testing.assert_allclose(xyz[-1, -1], [1000 * (cam.width - 1 - cam.cx) / cam.fx,
-                                             1000 * (cam.height - 1 - cam.cy) / cam.fy, 1000], rtol=1e-6)
+    np.testing.assert_allclose(
+        xyz[-1, -1],
+        [1000 * (cam.width - 1 - cam.cx) / cam.fx, 1000 * (cam.height - 1 - cam.cy) / cam.fy, 1000],
+        rtol=1e-6,
+    )
     assert xyz[240, 639, 0] > 0 and xyz[479, 320, 1] > 0  # x right, y down
 
 
@@ -104,6 +115,7 @@ def test_the_shipped_calibration_is_what_fpp_demo_makes(rig, patterns):
     volume, to 1e-4 mm (240x under the sensor's 0.024 mm noise). Another noise seed moves it 1.2e-3 mm."""
     from fpp_nodes.core.calibration import default_calibration_path
     from fpp_nodes.core.workflow import simulated_calibration
+
     shipped = Calibration.load(default_calibration_path())
     made, _ = simulated_calibration(rig, patterns, seed=0)
     assert shipped.patterns == made.patterns and shipped.camera == made.camera

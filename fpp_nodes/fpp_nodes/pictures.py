@@ -9,6 +9,7 @@
 Every function returns a BGR uint8 image for cv2.imwrite; NaN marks invalid pixels on the way in and
 is drawn in INVALID_BGR.
 """
+
 from __future__ import annotations
 
 import math
@@ -16,8 +17,8 @@ import math
 import cv2
 import numpy as np
 
-from .calibration import CameraIntrinsics, back_project
-from .metrics import depth_errors
+from .core.calibration import CameraIntrinsics, back_project
+from .core.metrics import depth_errors
 
 INVALID_BGR = (96, 96, 96)
 PAPER, INK = (255, 255, 255), (0, 0, 0)
@@ -27,8 +28,16 @@ FONT, FONT_SCALE = cv2.FONT_HERSHEY_SIMPLEX, 0.45
 BAR_GAP, BAR_WIDTH, BAR_PANEL, BAR_MARGIN = 10, 16, 92, 12
 TITLE_HEIGHT = 24
 # curve colours (BGR) in the order curves are given: black, then a colour-blind-safe palette
-PALETTE = ((0, 0, 0), (178, 114, 0), (0, 94, 213), (115, 158, 0), (167, 121, 204), (66, 228, 240),
-           (233, 180, 86), (0, 159, 230))
+PALETTE = (
+    (0, 0, 0),
+    (178, 114, 0),
+    (0, 94, 213),
+    (115, 158, 0),
+    (167, 121, 204),
+    (66, 228, 240),
+    (233, 180, 86),
+    (0, 159, 230),
+)
 
 
 def _diverging_lut() -> np.ndarray:
@@ -104,7 +113,7 @@ def _with_scale_bar(picture: np.ndarray, first: float, last: float, colormap, un
     rows = np.arange(top, bottom + 1)
     values = last + (first - last) * (rows - top) / max(bottom - top, 1)
     x0 = w + BAR_GAP
-    canvas[top:bottom + 1, x0:x0 + BAR_WIDTH] = _colour(values, first, last, colormap)[:, None]
+    canvas[top : bottom + 1, x0 : x0 + BAR_WIDTH] = _colour(values, first, last, colormap)[:, None]
     cv2.rectangle(canvas, (x0 - 1, top - 1), (x0 + BAR_WIDTH, bottom + 1), INK, 1)
     ticks, decimals = _ticks(first, last)
     for v in ticks:
@@ -121,16 +130,18 @@ def depth_colours(depth_mm: np.ndarray, lo: float | None = None, hi: float | Non
     return _colour(depth_mm, hi, lo)
 
 
-def depth_picture(depth_mm: np.ndarray, lo: float | None = None, hi: float | None = None,
-                  title: str | None = None) -> np.ndarray:
+def depth_picture(
+    depth_mm: np.ndarray, lo: float | None = None, hi: float | None = None, title: str | None = None
+) -> np.ndarray:
     """Colour-mapped depth (near = red) with a scale bar in mm (near at the top); range lo..hi
     defaults to the 1st..99th percentile of the valid pixels; NaN in INVALID_BGR."""
     lo, hi = depth_range(depth_mm, lo, hi)
     return _titled(_with_scale_bar(depth_colours(depth_mm, lo, hi), hi, lo, cv2.COLORMAP_TURBO, "mm"), title)
 
 
-def error_picture(pred_mm: np.ndarray, truth_mm: np.ndarray, limit_mm: float | None = None,
-                  title: str | None = None) -> np.ndarray:
+def error_picture(
+    pred_mm: np.ndarray, truth_mm: np.ndarray, limit_mm: float | None = None, title: str | None = None
+) -> np.ndarray:
     """pred - truth in a blue-white-red map over [-limit, +limit] (default: the 99th percentile of
     |error|), scale bar in mm, and a title with the RMSE over the pixels valid in both."""
     mask = np.isfinite(pred_mm) & np.isfinite(truth_mm)
@@ -162,16 +173,30 @@ def _normals(xyz: np.ndarray) -> np.ndarray:
     pad = np.pad(xyz, ((1, 1), (1, 1), (0, 0)), constant_values=np.nan)
     du = pad[1:-1, 2:] - pad[1:-1, :-2]
     dv = pad[2:, 1:-1] - pad[:-2, 1:-1]
-    n = np.stack([du[..., 2] * dv[..., 1] - du[..., 1] * dv[..., 2],
-                  du[..., 0] * dv[..., 2] - du[..., 2] * dv[..., 0],
-                  du[..., 1] * dv[..., 0] - du[..., 0] * dv[..., 1]], axis=-1)  # dv x du: towards the camera
+    n = np.stack(
+        [
+            du[..., 2] * dv[..., 1] - du[..., 1] * dv[..., 2],
+            du[..., 0] * dv[..., 2] - du[..., 2] * dv[..., 0],
+            du[..., 1] * dv[..., 0] - du[..., 0] * dv[..., 1],
+        ],
+        axis=-1,
+    )  # dv x du: towards the camera
     with np.errstate(invalid="ignore", divide="ignore"):
         return n / np.sqrt(np.sum(n * n, axis=-1, keepdims=True))
 
 
-def cloud_view(points: np.ndarray, camera: CameraIntrinsics | None = None, size=(480, 360),
-               tilt_deg: float = 30.0, turn_deg: float = -25.0, step: int | None = None, colour: str = "depth",
-               lo: float | None = None, hi: float | None = None, background=PAPER) -> np.ndarray:
+def cloud_view(
+    points: np.ndarray,
+    camera: CameraIntrinsics | None = None,
+    size=(480, 360),
+    tilt_deg: float = 30.0,
+    turn_deg: float = -25.0,
+    step: int | None = None,
+    colour: str = "depth",
+    lo: float | None = None,
+    hi: float | None = None,
+    background=PAPER,
+) -> np.ndarray:
     """The cloud as a surface seen from an oblique virtual camera.
 
     points: an organized (H, W, 3) cloud in the optical frame (x right, y down, z forward; any unit),
@@ -246,9 +271,17 @@ def _splat_sizes(keep: np.ndarray, u: np.ndarray, v: np.ndarray, largest: int = 
     return np.clip(np.ceil(1.2 * np.nan_to_num(gap[keep], nan=1.0)), 1, largest).astype(np.int32)
 
 
-def height_profile(row_index: int | None, curves: dict, size=(640, 360), ylabel: str = "depth (mm)",
-                   xlabel: str = "image column (px)", title: str | None = None, ylim=None,
-                   colours: dict | None = None, x_start: int = 0) -> np.ndarray:
+def height_profile(
+    row_index: int | None,
+    curves: dict,
+    size=(640, 360),
+    ylabel: str = "depth (mm)",
+    xlabel: str = "image column (px)",
+    title: str | None = None,
+    ylim=None,
+    colours: dict | None = None,
+    x_start: int = 0,
+) -> np.ndarray:
     """Curves (name -> 1-D array; NaN = no value) on shared axes with ticks and a legend, as the
     paper's Figure 3 draws the height along one line of the image. Element i is at x_start + i;
     ylim (low, high) defaults to all finite values. Colours follow PALETTE in the order given (the
@@ -268,8 +301,10 @@ def height_profile(row_index: int | None, curves: dict, size=(640, 360), ylabel:
     ymin, ymax = ylim
 
     def px(i, value):
-        return (x0 + (x1 - x0) * np.asarray(i) / max(n - 1, 1),
-                y1 - (y1 - y0) * (np.asarray(value) - ymin) / max(ymax - ymin, 1e-12))
+        return (
+            x0 + (x1 - x0) * np.asarray(i) / max(n - 1, 1),
+            y1 - (y1 - y0) * (np.asarray(value) - ymin) / max(ymax - ymin, 1e-12),
+        )
 
     cv2.rectangle(img, (x0, y0), (x1, y1), INK, 1)
     ticks, decimals = _ticks(ymin, ymax)
@@ -288,7 +323,7 @@ def height_profile(row_index: int | None, curves: dict, size=(640, 360), ylabel:
     _text(img, ylabel, (4, top - 10))
     heading = title if title is not None else (f"along row {row_index}" if row_index is not None else "")
     _text(img, heading, (x1 - _text_width(heading), top - 10))
-    plot = img[y0 + 1:y1, x0 + 1:x1]  # curves are clipped to the axes
+    plot = img[y0 + 1 : y1, x0 + 1 : x1]  # curves are clipped to the axes
     for k, (name, a) in reversed(list(enumerate(arrays.items()))):  # the first (the reference) on top
         xs, ys = px(np.arange(len(a)), a)
         ok = np.isfinite(ys)
@@ -323,8 +358,13 @@ def profile_row(depth_mm: np.ndarray) -> int:
     return int(np.argmax(spread)) if valid.any() else depth.shape[0] // 2
 
 
-def side_by_side(images: list, captions: list | None = None, height: int | None = None, gap: int = 6,
-                 caption_height: int = TITLE_HEIGHT) -> np.ndarray:
+def side_by_side(
+    images: list,
+    captions: list | None = None,
+    height: int | None = None,
+    gap: int = 6,
+    caption_height: int = TITLE_HEIGHT,
+) -> np.ndarray:
     """Images (BGR or grey uint8) in a row, scaled to one height (default: the first's), each under
     its caption if captions are given."""
     if captions is not None and len(captions) != len(images):
@@ -339,7 +379,9 @@ def side_by_side(images: list, captions: list | None = None, height: int | None 
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
         if img.shape[0] != height:
             w = max(1, round(img.shape[1] * height / img.shape[0]))
-            img = cv2.resize(img, (w, height), interpolation=cv2.INTER_AREA if img.shape[0] > height else cv2.INTER_LINEAR)
+            img = cv2.resize(
+                img, (w, height), interpolation=cv2.INTER_AREA if img.shape[0] > height else cv2.INTER_LINEAR
+            )
         tile = img if captions is None else _titled(img, captions[k] or " ", caption_height)
         tiles += [tile, np.full((tile.shape[0], gap, 3), PAPER, np.uint8)]
     return np.hstack(tiles[:-1])

@@ -4,8 +4,8 @@ import time
 import numpy as np
 import pytest
 
-from fpp_nodes.core.simulation import (FAMILY_NAMES, SCENE_FAMILIES, VOID_DEPTH_MM, Rig, make_scene, random_rig,
-                                       render)
+from fpp_nodes.core.scenes import FAMILY_NAMES, SCENE_FAMILIES, VOID_DEPTH_MM, make_scene
+from fpp_nodes.core.simulation import Rig, random_rig, render
 
 SEEDS = (0, 1)
 

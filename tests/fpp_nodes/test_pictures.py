@@ -1,5 +1,6 @@
 """Pictures (fpp_nodes/core/pictures.py): the colours mean what the scale bar says, invalid pixels
 look invalid, the renderer draws surfaces, and the tools write the files."""
+
 import subprocess
 import sys
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 
 from fpp_nodes import cli
-from fpp_nodes.core import pictures as P
+from fpp_nodes import pictures as P
 from fpp_nodes.core.calibration import CameraIntrinsics, back_project, default_calibration_path
 from fpp_nodes.core.model import paper_model_path
 
@@ -53,7 +54,7 @@ def test_error_is_neutral_where_prediction_equals_truth_and_signed_elsewhere():
     assert far[2] > far[0] + 40 and near[0] > near[2] + 40
     for col, value in ((50, 0.0), (110, 0.5), (140, -0.5)):
         assert np.abs(img[t + 60, col].astype(int) - bar_colour(img, value, -1.0, 1.0, top_offset=t)).max() <= 12
-    assert (img[t:t + 20, :20] == P.INVALID_BGR).all()
+    assert (img[t : t + 20, :20] == P.INVALID_BGR).all()
 
 
 def plane(tilt_x: float) -> np.ndarray:
@@ -127,25 +128,49 @@ def test_fpp_reconstruct_writes_pictures_that_decode(tmp_path, capsys):
         img = cv2.imread(str(out / name))
         assert img is not None and img.ndim == 3 and min(img.shape[:2]) >= 200, name
         assert str(out / name) in printed
-    assert cli.main(["evaluate", str(out / "depth_mm.npy"), str(scene / "depth_gt_mm.npy"), "--valid",
-                     str(scene / "valid_gt.png"), "--pictures", str(tmp_path / "ev")]) == 0
+    assert (
+        cli.main(
+            [
+                "evaluate",
+                str(out / "depth_mm.npy"),
+                str(scene / "depth_gt_mm.npy"),
+                "--valid",
+                str(scene / "valid_gt.png"),
+                "--pictures",
+                str(tmp_path / "ev"),
+            ]
+        )
+        == 0
+    )
     assert cv2.imread(str(tmp_path / "ev" / "error.png")) is not None
 
 
 def test_figures_2_and_3_from_a_data_set_and_an_onnx_model(tmp_path):
     from training import figures
     from training.dataset import write_set
+
     data = write_set(tmp_path / "data", "single", counts=(0, 0, 1), workers=1)
     (tmp_path / "extra").mkdir()
     cv2.imwrite(str(tmp_path / "extra" / "x.png"), np.zeros((40, 60, 3), np.uint8))
-    figures.main(["--data", str(data), "--out", str(tmp_path / "pics"), "--also", f"{tmp_path}/extra/x.png:0.5",
-                  paper_model_path()])
+    figures.main(
+        [
+            "--data",
+            str(data),
+            "--out",
+            str(tmp_path / "pics"),
+            "--also",
+            f"{tmp_path}/extra/x.png:0.5",
+            paper_model_path(),
+        ]
+    )
     fig2, fig3 = (cv2.imread(str(tmp_path / "pics" / f)) for f in ("figure2.png", "figure3.png"))
     assert fig2.shape[1] > 3 * fig2.shape[0] // 2 and fig3 is not None  # input, truth, UNet in a row
     assert cv2.imread(str(tmp_path / "pics" / "extra_x.png")).shape == (20, 30, 3)
 
 
 def test_pictures_import_with_numpy_and_cv2_only():
-    code = ("import sys, fpp_nodes.core.pictures; "
-            "assert not [m for m in sys.modules if m.split('.')[0] in ('rclpy', 'torch', 'matplotlib')]")
+    code = (
+        "import sys, fpp_nodes.pictures; "
+        "assert not [m for m in sys.modules if m.split('.')[0] in ('rclpy', 'torch', 'matplotlib')]"
+    )
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0

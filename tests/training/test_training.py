@@ -1,5 +1,6 @@
 """The single-shot training chain on a tiny data set: data, networks, training, resume, safe
 checkpoints, torchrun with two CPU processes, ONNX export and parity, the model in onnxruntime."""
+
 import pickle
 import subprocess
 import sys
@@ -76,6 +77,7 @@ def test_checkpoints_never_run_pickled_code(tmp_path):
     class Evil:
         def __reduce__(self):
             return (print, ("pwned",))
+
     path = tmp_path / "evil.pt"
     path.write_bytes(pickle.dumps({"format": "fpp_checkpoint", "x": Evil()}))
     with pytest.raises(ValueError, match="cannot load checkpoint"):
@@ -83,9 +85,30 @@ def test_checkpoints_never_run_pickled_code(tmp_path):
 
 
 def test_torchrun_with_two_cpu_processes(tiny_set, tmp_path):
-    r = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "-m", "training.train",
-                        "--data", str(tiny_set), "--out", str(tmp_path), "--arch", "aen", "--width", "4", "--epochs", "1"],
-                       capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--nproc_per_node",
+            "2",
+            "-m",
+            "training.train",
+            "--data",
+            str(tiny_set),
+            "--out",
+            str(tmp_path),
+            "--arch",
+            "aen",
+            "--width",
+            "4",
+            "--epochs",
+            "1",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.count("epoch 1:") == 1  # only rank 0 reports and saves
     assert load_checkpoint(tmp_path / "last.pt")["epoch"] == 1
@@ -114,8 +137,12 @@ def test_export_parity_card_and_onnxruntime(trained, tmp_path):
 
 def test_evaluate_prints_table_1(trained, tiny_set):
     out, _ = trained
-    r = subprocess.run([sys.executable, "-m", "training.evaluate", "--data", str(tiny_set), str(out / "last.pt")],
-                       capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, "-m", "training.evaluate", "--data", str(tiny_set), str(out / "last.pt")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     rows = {line[:28].strip(): line[28:].split() for line in r.stdout.splitlines()}
     assert rows[""] == ["UNET", "FTP", "multi-shot"]
@@ -128,23 +155,35 @@ def test_cnn_depth_node(trained, tmp_path, ros_graph):
     a corrupt model stops it with one line."""
     from sensor_msgs.msg import Image, PointCloud2
     from std_msgs.msg import Header
+
     from fpp_msgs_py import Qos, Topics, image_to_numpy, numpy_to_image
+
     out, _ = trained
     export(str(out / "last.pt"), str(tmp_path / "m.onnx"))
     procs, robot = ros_graph
     from fpp_nodes.core.calibration import Calibration, default_calibration_path
+
     # the model reads the paper's frame (its data set's): a rig calibrated to show it
     Calibration.load(default_calibration_path()).with_papers_single_shot().save(tmp_path / "paper.yaml")
-    procs.start("cnn_depth", "-p", f"model:={tmp_path / 'm.onnx'}", "-p", "threads:=1",
-              "-p", f"calibration:={tmp_path / 'paper.yaml'}")
+    procs.start(
+        "cnn_depth",
+        "-p",
+        f"model:={tmp_path / 'm.onnx'}",
+        "-p",
+        "threads:=1",
+        "-p",
+        f"calibration:={tmp_path / 'paper.yaml'}",
+    )
     depth, clouds = [], []
     robot.node.create_subscription(Image, Topics.DEPTH, depth.append, Qos.LARGE)
     robot.node.create_subscription(PointCloud2, Topics.POINTS, clouds.append, Qos.LARGE)
     pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
     assert robot.spin_until(lambda: pub.get_subscription_count() > 0, 30)
     image, _, _ = load_sample(split_files(trained[1].data, "test")[0])
-    for bad, said in ((np.zeros((240, 320), np.uint8), "the model takes 640x480 images"),
-                      (np.zeros((480, 640), np.float32), "mono8 or mono16")):
+    for bad, said in (
+        (np.zeros((240, 320), np.uint8), "the model takes 640x480 images"),
+        (np.zeros((480, 640), np.float32), "mono8 or mono16"),
+    ):
         pub.publish(numpy_to_image(bad, Header(frame_id="camera_optical_frame")))
         # one at a time: the node keeps only the newest frame
         assert robot.spin_until(lambda: said in procs.logs(), 60), procs.logs()
@@ -162,12 +201,15 @@ def test_cnn_depth_node(trained, tmp_path, ros_graph):
 def test_a_data_set_from_a_recorded_bag(tmp_path):
     """What a user with real hardware does: record full sequences, label them with the multi-shot path."""
     from rclpy.serialization import serialize_message
+
     from fpp_msgs_py import header_at, numpy_to_image
     from fpp_nodes.bag import BagWriter
     from fpp_nodes.core.calibration import Calibration, default_calibration_path
     from fpp_nodes.core.patterns import pattern_images
-    from fpp_nodes.core.simulation import Rig, make_scene, render
+    from fpp_nodes.core.scenes import make_scene
+    from fpp_nodes.core.simulation import Rig, render
     from training.dataset import write_bag_set
+
     rig = Rig()
     patterns = rig.pattern_set()
     capture = render(rig, make_scene(rig, "objects", 21), patterns, np.random.default_rng(21))
@@ -176,9 +218,18 @@ def test_a_data_set_from_a_recorded_bag(tmp_path):
     t = 1_000_000_000
     for k in list(range(5, patterns.count)) + list(range(patterns.count)):  # joins mid-sequence, then one whole
         header = header_at(t, "camera_optical_frame")
-        writer.write("/projector/pattern", "sensor_msgs/msg/Image", t,
-                     serialize_message(numpy_to_image(pattern_images(patterns)[k], header)))
-        writer.write("/camera/image_raw", "sensor_msgs/msg/Image", t + 1000, serialize_message(numpy_to_image(capture.images[k], header)))
+        writer.write(
+            "/projector/pattern",
+            "sensor_msgs/msg/Image",
+            t,
+            serialize_message(numpy_to_image(pattern_images(patterns)[k], header)),
+        )
+        writer.write(
+            "/camera/image_raw",
+            "sensor_msgs/msg/Image",
+            t + 1000,
+            serialize_message(numpy_to_image(capture.images[k], header)),
+        )
         t += 33_000_000
     writer.close()
     assert write_bag_set(tmp_path / "bag", tmp_path / "set") == 1
@@ -205,8 +256,12 @@ def test_the_phase_aware_network_trains_exports_and_runs(tmp_path):
     assert depth.shape == confidence.shape == (480, 640) and known.mean() > 0.3
     assert np.all((confidence[known] >= 0) & (confidence[known] <= 1))
     assert np.all(np.isnan(depth[confidence < card["decoding"]["min_confidence"]]))
-    r = subprocess.run([sys.executable, "-m", "training.evaluate", "--data", str(data), "--families", str(tmp_path / "m.onnx")],
-                       capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, "-m", "training.evaluate", "--data", str(data), "--families", str(tmp_path / "m.onnx")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0 and "bust" in r.stdout and "freeform" in r.stdout, r.stderr[-2000:]
     with pytest.raises(ValueError, match="downsample 1"):
         TrainConfig(arch="phase", downsample=2)
@@ -218,8 +273,18 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     data = write_set(tmp_path / "data", "composite", counts=(2, 1, 1), workers=1)
     with np.load(split_files(data, "train")[0]) as z:
         assert z["code"].shape == (2, 480, 640) and str(z["family"]) == "bust"
-    train(TrainConfig(data=str(data), out=str(tmp_path / "run"), arch="composite", width=4, downsample=1, epochs=1,
-                      crop=160, batch_size=4))
+    train(
+        TrainConfig(
+            data=str(data),
+            out=str(tmp_path / "run"),
+            arch="composite",
+            width=4,
+            downsample=1,
+            epochs=1,
+            crop=160,
+            batch_size=4,
+        )
+    )
     card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m.onnx"))
     assert card["output"]["name"] == "fringe_phases" and card["input"]["content"] == "single-shot composite"
     assert card["decoding"]["depth_range_mm"] == [1000.0, 1350.0] and "val" in card["decoding"]["chosen_on"]

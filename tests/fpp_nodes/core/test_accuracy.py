@@ -1,4 +1,5 @@
 """The multi-shot path on the default noisy rig, calibrated from noisy planes, over held-out scenes."""
+
 from dataclasses import replace
 
 import cv2
@@ -7,7 +8,8 @@ import pytest
 
 from fpp_nodes.core.metrics import depth_errors
 from fpp_nodes.core.reconstruct import PspReconstructor, QualityLimits, reconstruct_ftp
-from fpp_nodes.core.simulation import make_scene, plane_scene, render
+from fpp_nodes.core.scenes import make_scene, plane_scene
+from fpp_nodes.core.simulation import render
 from fpp_nodes.core.workflow import fringe_depth_mm, held_out_scenes, score
 
 
@@ -37,7 +39,7 @@ def test_no_fringe_order_errors_and_shadows_are_all_that_is_lost(results, calibr
     one_fringe = fringe_depth_mm(calibration, calibration.model.phase_at_depth(1200.0, u, v)).max()
     assert 10 < one_fringe < 16
     assert tallest_step > 2 * one_fringe  # the scenes do test temporal unwrapping
-    for r, _, capture in results:
+    for r, _, _ in results:
         assert r.errors.order_errors == 0, r
         assert r.errors.coverage > 0.99, r  # of the lit pixels; the rest sit on edges (flying-pixel filter)
 
@@ -48,7 +50,9 @@ def test_no_wrong_depth_is_reported_in_shadows(results, rig, patterns, calibrati
         depth = psp(capture.images).depth_mm
         wrong = np.isfinite(depth) & (np.abs(depth - capture.depth_mm) > 1.0)
         terminator = cv2.dilate((~capture.valid).astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
-        assert not (wrong & ~terminator).any()  # a pixel off by 1 mm is one that defocus lit from across a shadow's edge
+        assert not (
+            wrong & ~terminator
+        ).any()  # a pixel off by 1 mm is one that defocus lit from across a shadow's edge
         assert wrong.sum() <= 5e-4 * wrong.size
 
 
@@ -60,7 +64,7 @@ def test_quality_is_the_depth_noise_each_pixel_has(results, calibration):
         assert np.array_equal(np.isnan(rec.quality), np.isnan(rec.depth_mm))
         inner = rec.valid & (cv2.erode(capture.valid.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0)
         normalised = (rec.depth_mm - capture.depth_mm)[inner] / rec.quality[inner]
-        assert 0.8 < np.sqrt(np.mean(normalised ** 2)) < 1.25, r.scene
+        assert 0.8 < np.sqrt(np.mean(normalised**2)) < 1.25, r.scene
 
 
 def test_dark_scenes_are_measured_to_their_noise(rig, patterns, calibration):
@@ -90,7 +94,7 @@ def test_the_fast_phase_costs_no_accuracy(rig, patterns, calibration):
     both = np.isfinite(fast) & np.isfinite(exact)
     assert both.sum() > 0.95 * np.isfinite(exact).sum()
     difference = (fast - exact)[both]
-    assert np.abs(difference).max() < 1e-3 and np.sqrt(np.mean(difference ** 2)) < 3e-4
+    assert np.abs(difference).max() < 1e-3 and np.sqrt(np.mean(difference**2)) < 3e-4
 
 
 def test_row_bands_give_the_result_in_one_piece(rig, patterns, calibration):
@@ -105,8 +109,14 @@ def test_row_bands_give_the_result_in_one_piece(rig, patterns, calibration):
 def test_noise_limit_is_what_the_formula_says_on_a_plane(rig, patterns, calibration):
     """On a plane the measured scatter about the truth must match the formula, not just be below 2x."""
     capture = render(rig, plane_scene(rig, 1200.0), patterns, np.random.default_rng(11))
-    r = score(PspReconstructor(calibration)(capture.images), capture.depth_mm, capture.valid, calibration,
-              rig.noise_sigma, "plane")
+    r = score(
+        PspReconstructor(calibration)(capture.images),
+        capture.depth_mm,
+        capture.valid,
+        calibration,
+        rig.noise_sigma,
+        "plane",
+    )
     assert r.noise_limited_rmse_mm * 0.9 < r.errors.rmse_mm < r.noise_limited_rmse_mm * 1.3, r
 
 
@@ -126,7 +136,8 @@ def test_the_papers_unet_on_fresh_scenes_of_its_family(rig, patterns, seed):
     never saw, about 99% of lit pixels covered), on freshly rendered held-out scenes (training seeds
     start at 100000)."""
     from fpp_nodes.core.model import DepthModel, paper_model_path
-    from fpp_nodes.core.simulation import make_scene
+    from fpp_nodes.core.scenes import make_scene
+
     capture = render(rig, make_scene(rig, "sculpture", seed), patterns, np.random.default_rng(seed))
     depth = DepthModel(paper_model_path())(capture.images[patterns.input_index("paper")])
     errors = depth_errors(depth, capture.depth_mm, capture.valid)
@@ -140,7 +151,10 @@ def test_the_shipped_single_shot_model_is_not_silently_wrong_where_the_papers_un
     1 mm on the smooth shapes (measured 0-0.1%) and 3% on the blocks (2.2%: at the step edges)."""
     from fpp_nodes.core.model import DepthModel, default_model_path, paper_model_path
     from training.figures import failure_figure
-    _, table = failure_figure([("shipped", DepthModel(default_model_path())), ("paper", DepthModel(paper_model_path()))], rig)
+
+    _, table = failure_figure(
+        [("shipped", DepthModel(default_model_path())), ("paper", DepthModel(paper_model_path()))], rig
+    )
     rows = {(scene, model): (silent, cover) for scene, model, _, silent, cover in table}
     for (scene, model), (silent, cover) in rows.items():
         if model == "shipped":

@@ -10,6 +10,7 @@ from fpp_nodes.bag import BagError, BagWriter, read_bag
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.simulation import Rig
 from fpp_nodes.core.workflow import simulated_calibration
+
 from rosgraph import ProbeNode, fresh_domain_id, node_processes
 
 
@@ -57,10 +58,17 @@ def recorded(tmp_path_factory):
         robot.node.create_subscription(PointCloud2, Topics.POINTS, clouds.append, Qos.LARGE)
         procs.start("sensor", "-p", f"calibration:={d / 'cal.yaml'}", "-p", "scene:=objects", "-p", "seed:=4")
         assert robot.spin_until(lambda: len(clouds) >= 1, 60)
-        procs.start("record", "-p", f"output:={d / 'bag'}", "-p", f"calibration:={d / 'cal.yaml'}", "-p", "outputs:=true")
-        assert robot.spin_until(lambda: robot.node.count_subscribers(Topics.PATTERN) >= 3  # camera, capture, record
-                                and robot.node.count_subscribers(Topics.CAMERA_IMAGE) >= 2  # capture, record
-                                and robot.node.count_subscribers(Topics.POINTS) >= 2, 30)  # this robot, record
+        procs.start(
+            "record", "-p", f"output:={d / 'bag'}", "-p", f"calibration:={d / 'cal.yaml'}", "-p", "outputs:=true"
+        )
+        assert robot.spin_until(
+            lambda: (
+                robot.node.count_subscribers(Topics.PATTERN) >= 3  # camera, capture, record
+                and robot.node.count_subscribers(Topics.CAMERA_IMAGE) >= 2  # capture, record
+                and robot.node.count_subscribers(Topics.POINTS) >= 2
+            ),
+            30,
+        )  # this robot, record
         recording_from = len(clouds)
         assert robot.spin_until(lambda: len(clouds) >= recording_from + 10, 60)
     finally:
@@ -74,7 +82,10 @@ def test_replay_reconstructs_identical_clouds_without_the_original_parameters(re
     d, live = recorded
     with Reader(d / "bag") as reader:  # the outputs are in the bag to look at; the replay makes them anew
         assert {"/points", "/depth/image"} <= {c.topic for c in reader.connections if c.msgcount > 0}
-    assert Calibration.from_yaml(read_bag(d / "bag").calibration_yaml).to_dict() == Calibration.load(d / "cal.yaml").to_dict()
+    assert (
+        Calibration.from_yaml(read_bag(d / "bag").calibration_yaml).to_dict()
+        == Calibration.load(d / "cal.yaml").to_dict()
+    )
     procs = node_processes(fresh_domain_id(), tmp_path)
     robot = ProbeNode(procs.domain_id)
     try:

@@ -1,8 +1,15 @@
 import numpy as np
 import pytest
 
-from fpp_nodes.core.phase import (PhaseError, ftp_wrapped_phase, phase_noise, phase_shift, unwrap_spatial,
-                                  unwrap_temporal, wrapped_phase)
+from fpp_nodes.core.phase import (
+    PhaseError,
+    ftp_wrapped_phase,
+    phase_noise,
+    phase_shift,
+    unwrap_spatial,
+    unwrap_temporal,
+    wrapped_phase,
+)
 
 TWO_PI = 2 * np.pi
 

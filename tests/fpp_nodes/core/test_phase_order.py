@@ -1,5 +1,6 @@
 """The phase-aware single-shot decoding (core/model.py): network outputs -> depth, and the confidence
 that says NaN rather than guess."""
+
 import numpy as np
 import pytest
 
@@ -14,8 +15,9 @@ def ideal_outputs(rig, patterns, calibration, depth_mm, sigma_orders, amplitude=
     phase = calibration.model.phase_at_depth(depth_mm, u, v) * np.ones((rig.height, rig.width))
     reference = calibration.model.phase_at_depth(calibration.reference_depth_mm, u, v)
     orders = (phase - reference) / (2 * np.pi) + 0.3 * sigma_orders
-    return np.stack([amplitude * np.sin(phase), amplitude * np.cos(phase), orders,
-                     np.full(phase.shape, np.log(sigma_orders))]).astype(np.float32)
+    return np.stack(
+        [amplitude * np.sin(phase), amplitude * np.cos(phase), orders, np.full(phase.shape, np.log(sigma_orders))]
+    ).astype(np.float32)
 
 
 @pytest.mark.parametrize("depth_mm", [1080.0, 1200.0, 1310.0])
@@ -37,5 +39,6 @@ def test_order_confidence_is_the_gaussian_probability_of_the_right_order():
     sigma = np.array([0.05, 0.2, 0.5, 1.0, 5.0], np.float32)
     # P(|N(0, sigma)| < 0.5) = erf(0.5 / (sqrt(2) sigma)), from math.erf
     from math import erf, sqrt
+
     expected = [erf(0.5 / (sqrt(2) * s)) for s in sigma]
     np.testing.assert_allclose(order_confidence(np.log(sigma)), expected, atol=1e-6)

@@ -1,4 +1,5 @@
 """The sensor as robots see it: real nodes in separate processes, talking over DDS."""
+
 import time
 
 import numpy as np
@@ -8,8 +9,8 @@ from std_msgs.msg import Header
 
 from fpp_msgs_py import Frames, Qos, Topics, cloud_to_xyz, header_at, image_to_numpy, numpy_to_image, stamp_ns
 from fpp_nodes.core.patterns import pattern_images
-from fpp_nodes.core.simulation import Rig, make_scene, render
-
+from fpp_nodes.core.scenes import make_scene
+from fpp_nodes.core.simulation import Rig, render
 
 
 def collect(robot, topic, msg_type, qos=Qos.LARGE):
@@ -51,8 +52,11 @@ def test_composed_sensor_with_a_late_subscriber(ros_graph):
     assert info[-1].k[0] == pytest.approx(Rig().focal_px)
     # quality: each pixel's expected depth noise in mm, NaN where depth is; this rig's is about 0.024 mm
     same = {stamp_ns(m.header.stamp): m for m in quality}
-    paired = [(image_to_numpy(m), image_to_numpy(same[stamp_ns(m.header.stamp)])) for m in late
-              if stamp_ns(m.header.stamp) in same]
+    paired = [
+        (image_to_numpy(m), image_to_numpy(same[stamp_ns(m.header.stamp)]))
+        for m in late
+        if stamp_ns(m.header.stamp) in same
+    ]
     assert paired
     for depth, noise in paired:
         assert quality[-1].encoding == "32FC1" and np.array_equal(np.isnan(depth), np.isnan(noise))
@@ -62,8 +66,11 @@ def test_composed_sensor_with_a_late_subscriber(ros_graph):
 def test_health_on_diagnostics(ros_graph):
     """Every node of the composed sensor reports on /diagnostics: rates, drops, latency, what it runs with."""
     import yaml
-    from rosgraph import Diagnostics
+
     from fpp_nodes.core.model import default_model_path
+
+    from rosgraph import Diagnostics
+
     procs, robot = ros_graph
     procs.start("sensor")
     points, cnn_points = collect(robot, Topics.POINTS, PointCloud2), collect(robot, "cnn/" + Topics.POINTS, PointCloud2)
@@ -72,8 +79,9 @@ def test_health_on_diagnostics(ros_graph):
     names = {"/pattern_projector", "/fringe_camera_sim", "/capture_sequence", "/fpp_depth", "/cnn/cnn_depth"}
     assert robot.spin_until(lambda: names <= set(diagnostics.latest), 30), diagnostics.latest.keys()
     robot.spin_until(lambda: False, 1.5)  # one more report, covering the running stream
-    assert all(diagnostics.latest[n].level == b"\x00" and diagnostics.latest[n].hardware_id == "fpp_sensor"
-               for n in names), {n: diagnostics.latest[n].message for n in names}
+    assert all(
+        diagnostics.latest[n].level == b"\x00" and diagnostics.latest[n].hardware_id == "fpp_sensor" for n in names
+    ), {n: diagnostics.latest[n].message for n in names}
     assert float(diagnostics.value("/pattern_projector", "patterns shown rate (Hz)")) > 10
     assert float(diagnostics.value("/capture_sequence", "sequences complete rate (Hz)")) > 0.5
     assert diagnostics.value("/capture_sequence", "sequences dropped", "none") == "none"  # never counted: none
@@ -105,15 +113,23 @@ def test_broken_sequences_over_dds_are_dropped_never_mixed(ros_graph):
     pattern_pub = robot.node.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)
     camera_pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
     clouds = collect(robot, Topics.POINTS, PointCloud2)
-    assert robot.spin_until(lambda: pattern_pub.get_subscription_count() and camera_pub.get_subscription_count()
-                            and robot.node.count_publishers(Topics.POINTS), 30)
+    assert robot.spin_until(
+        lambda: (
+            pattern_pub.get_subscription_count()
+            and camera_pub.get_subscription_count()
+            and robot.node.count_publishers(Topics.POINTS)
+        ),
+        30,
+    )
     time.sleep(1.0)  # let discovery settle both ways
     k = patterns.count
-    plays = [list(range(k)),                                  # complete
-             [i for i in range(k) if i != 5],                 # missing frame
-             list(range(8)) + [7] + list(range(8, k)),        # duplicated frame
-             [0, 1, 2, 4, 3] + list(range(5, k)),             # out of order
-             list(range(k))]                                  # complete
+    plays = [
+        list(range(k)),  # complete
+        [i for i in range(k) if i != 5],  # missing frame
+        list(range(8)) + [7] + list(range(8, k)),  # duplicated frame
+        [0, 1, 2, 4, 3] + list(range(5, k)),  # out of order
+        list(range(k)),
+    ]  # complete
     t = 1_000_000_000
     first_stamps = []
     for play in plays:
@@ -147,6 +163,7 @@ def test_a_bad_parameter_is_one_fatal_line(ros_graph):
 def test_no_work_for_outputs_nobody_subscribes_to(ros_graph):
     """fpp_depth in this process: a sequence with no subscriber is skipped, not reconstructed."""
     from fpp_nodes.nodes.fpp_depth import FppDepth
+
     _, robot = ros_graph
     depth_node = FppDepth(context=robot.context)
     robot.executor.add_node(depth_node)
@@ -169,10 +186,17 @@ def test_no_work_for_outputs_nobody_subscribes_to(ros_graph):
 def test_main_job_writes_clouds_and_reports(tmp_path):
     """`ros2 run fpp_nodes demo` (what `make demo` runs) on its own domain."""
     import subprocess
+
     from rosgraph import fresh_domain_id, ros_env
+
     env = dict(ros_env(), ROS_DOMAIN_ID=str(fresh_domain_id()))
-    r = subprocess.run(["ros2", "run", "fpp_nodes", "demo", "--out", str(tmp_path), "--clouds", "2", "--scene", "objects"],
-                       env=env, capture_output=True, text=True, timeout=180)
+    r = subprocess.run(
+        ["ros2", "run", "fpp_nodes", "demo", "--out", str(tmp_path), "--clouds", "2", "--scene", "objects"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     assert len(list(tmp_path.glob("cloud_*.ply"))) == 2 and len(list(tmp_path.glob("depth_*.png"))) >= 1
     rows = [line.split() for line in r.stdout.splitlines() if line.strip()[:1].isdigit() and "%" in line]

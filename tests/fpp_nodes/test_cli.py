@@ -1,7 +1,8 @@
 """The offline `fpp` tool as a user runs it: a subprocess, files in, files out, one-line errors."""
+
 import subprocess
-from dataclasses import replace
 import sys
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -9,8 +10,9 @@ import pytest
 
 
 def fpp(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "fpp_nodes", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "fpp_nodes", *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=300
+    )
 
 
 @pytest.fixture(scope="module")
@@ -20,8 +22,14 @@ def workdir(tmp_path_factory):
     for z in (1100, 1200, 1300):
         r = fpp("simulate", "--scene", "plane", "--depth", z, "--seed", z, "--out", d / f"plane{z}")
         assert r.returncode == 0, r.stderr
-    r = fpp("calibrate", *(f"{d}/plane{z}:{z}" for z in (1100, 1200, 1300)), "--sensor", d / "plane1200" / "sensor.yaml",
-            "--out", d / "cal.yaml")
+    r = fpp(
+        "calibrate",
+        *(f"{d}/plane{z}:{z}" for z in (1100, 1200, 1300)),
+        "--sensor",
+        d / "plane1200" / "sensor.yaml",
+        "--out",
+        d / "cal.yaml",
+    )
     assert r.returncode == 0, r.stderr
     assert r.stdout.count("fit RMSE") == 3
     r = fpp("simulate", "--scene", "objects", "--seed", 5, "--out", d / "scene")
@@ -53,7 +61,13 @@ def test_reconstruct_and_evaluate(workdir, method, bound):
     np.testing.assert_allclose(xyz["z"].reshape(480, 640), depth / 1000.0, rtol=1e-6)  # organized, metres
     tiff = cv2.imread(str(out / "depth_mm.tiff"), cv2.IMREAD_UNCHANGED)
     np.testing.assert_array_equal(np.isnan(tiff), np.isnan(np.load(out / "depth_mm.npy")))
-    r = fpp("evaluate", out / "depth_mm.npy", workdir / "scene" / "depth_gt_mm.npy", "--valid", workdir / "scene" / "valid_gt.png")
+    r = fpp(
+        "evaluate",
+        out / "depth_mm.npy",
+        workdir / "scene" / "depth_gt_mm.npy",
+        "--valid",
+        workdir / "scene" / "valid_gt.png",
+    )
     assert r.returncode == 0, r.stderr
     rmse = float(r.stdout.split()[1])
     if bound:
@@ -100,9 +114,18 @@ def bad_inputs(workdir, tmp_path):
         (("reconstruct", broken, "--calibration", cal, "--out", tmp_path / "o"), "cannot read image"),
         (("reconstruct", tmp_path / "nothing", "--calibration", cal, "--out", tmp_path / "o"), "does not exist"),
         (("reconstruct", scene, "--calibration", bad_cal, "--out", tmp_path / "o"), "missing 'fx'"),
-        (("reconstruct", scene, "--calibration", tmp_path / "none.yaml", "--out", tmp_path / "o"), "cannot read calibration"),
-        (("reconstruct", scene, "--calibration", cal, "--min-modulation", "-1", "--out", tmp_path / "o"), "min_modulation"),
-        (("reconstruct", scene, "--calibration", cal, "--max-depth-noise", "0", "--out", tmp_path / "o"), "max_depth_noise_mm"),
+        (
+            ("reconstruct", scene, "--calibration", tmp_path / "none.yaml", "--out", tmp_path / "o"),
+            "cannot read calibration",
+        ),
+        (
+            ("reconstruct", scene, "--calibration", cal, "--min-modulation", "-1", "--out", tmp_path / "o"),
+            "min_modulation",
+        ),
+        (
+            ("reconstruct", scene, "--calibration", cal, "--max-depth-noise", "0", "--out", tmp_path / "o"),
+            "max_depth_noise_mm",
+        ),
         (("calibrate", f"{scene}:1200", "--sensor", scene / "sensor.yaml"), "three or more different depths"),
         (("calibrate", f"{scene}:abc", "--sensor", scene / "sensor.yaml"), "not a number"),
         (("evaluate", tmp_path / "none.npy", scene / "depth_gt_mm.npy"), "cannot read"),
@@ -120,7 +143,9 @@ def test_bad_input_is_one_line_and_a_non_zero_exit(workdir, tmp_path):
 
 
 def test_core_imports_without_ros():
-    code = "import sys, fpp_nodes.cli, fpp_nodes.core.workflow; assert not any(m.startswith('rclpy') for m in sys.modules)"
+    code = (
+        "import sys, fpp_nodes.cli, fpp_nodes.core.workflow; assert not any(m.startswith('rclpy') for m in sys.modules)"
+    )
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
 
@@ -129,20 +154,43 @@ def test_reconstruct_with_the_single_shot_network(tmp_path):
     own family, and the shipped default, which may answer NaN but never more than 1% wrong by > 1 mm."""
     from fpp_nodes.core.calibration import Calibration, default_calibration_path
     from fpp_nodes.core.model import paper_model_path
+
     assert fpp("simulate", "--scene", "sculpture", "--seed", 1000, "--out", tmp_path / "scene").returncode == 0
     truth = np.load(tmp_path / "scene" / "depth_gt_mm.npy")
     lit = cv2.imread(str(tmp_path / "scene" / "valid_gt.png"), cv2.IMREAD_UNCHANGED) > 0
     shipped = Calibration.load(default_calibration_path())
     paper = tmp_path / "paper.yaml"  # the same rig showing the paper's single-shot frame, as the UNet expects
-    Calibration(shipped.camera, shipped.model, replace(shipped.patterns, single_shot="paper"),
-                shipped.reference_depth_mm).save(paper)
-    r = fpp("reconstruct", tmp_path / "scene", "--calibration", default_calibration_path(), "--method", "cnn",
-            "--model", paper_model_path(), "--out", tmp_path / "x")
+    Calibration(
+        shipped.camera, shipped.model, replace(shipped.patterns, single_shot="paper"), shipped.reference_depth_mm
+    ).save(paper)
+    r = fpp(
+        "reconstruct",
+        tmp_path / "scene",
+        "--calibration",
+        default_calibration_path(),
+        "--method",
+        "cnn",
+        "--model",
+        paper_model_path(),
+        "--out",
+        tmp_path / "x",
+    )
     assert r.returncode == 2 and "reads the 'paper' single-shot frame" in r.stderr, r.stderr
-    for name, calibration, model in (("paper", paper, ["--model", paper_model_path()]),
-                                     ("default", default_calibration_path(), [])):
-        r = fpp("reconstruct", tmp_path / "scene", "--calibration", calibration, "--method", "cnn",
-                *model, "--out", tmp_path / name)
+    for name, calibration, model in (
+        ("paper", paper, ["--model", paper_model_path()]),
+        ("default", default_calibration_path(), []),
+    ):
+        r = fpp(
+            "reconstruct",
+            tmp_path / "scene",
+            "--calibration",
+            calibration,
+            "--method",
+            "cnn",
+            *model,
+            "--out",
+            tmp_path / name,
+        )
         assert r.returncode == 0 and (tmp_path / name / "points.ply").is_file(), r.stderr
         depth = np.load(tmp_path / name / "depth_mm.npy")
         ok = np.isfinite(depth) & lit
@@ -150,8 +198,18 @@ def test_reconstruct_with_the_single_shot_network(tmp_path):
             assert ok.sum() > 0.95 * lit.sum() and np.sqrt(np.mean((depth - truth)[ok] ** 2)) < 0.6
         else:
             assert np.count_nonzero(np.abs(depth - truth)[ok] > 1.0) <= 0.01 * max(ok.sum(), 1)
-    r = fpp("reconstruct", tmp_path / "scene", "--calibration", default_calibration_path(), "--method", "cnn",
-            "--model", tmp_path / "missing.onnx", "--out", tmp_path / "x")
+    r = fpp(
+        "reconstruct",
+        tmp_path / "scene",
+        "--calibration",
+        default_calibration_path(),
+        "--method",
+        "cnn",
+        "--model",
+        tmp_path / "missing.onnx",
+        "--out",
+        tmp_path / "x",
+    )
     assert r.returncode == 2 and "does not exist" in r.stderr
 
 
@@ -159,8 +217,10 @@ def test_patterns_writes_what_a_projector_shows(tmp_path):
     """fpp patterns --out: every frame of a sequence at the projector's resolution, in projection order,
     with a list naming them; the composite last. A paper calibration's set has no composite."""
     import yaml
+
     from fpp_nodes.core.calibration import Calibration, default_calibration_path
     from fpp_nodes.core.patterns import generate_patterns
+
     r = fpp("patterns", "--out", tmp_path / "p")
     assert r.returncode == 0, r.stderr
     listing = yaml.safe_load((tmp_path / "p" / "patterns.yaml").read_text())

@@ -16,8 +16,16 @@ def test_equation_1_values_and_order():
 
 
 def test_horizontal_16_bit_any_resolution_and_steps():
-    p = PatternSet(frequencies=(1, 3, 9), steps=5, width=37, height=50, orientation="horizontal", bit_depth=16, gamma=1.0,
-                   single_shot="paper")
+    p = PatternSet(
+        frequencies=(1, 3, 9),
+        steps=5,
+        width=37,
+        height=50,
+        orientation="horizontal",
+        bit_depth=16,
+        gamma=1.0,
+        single_shot="paper",
+    )
     pats = generate_patterns(p)
     assert pats.shape == (15, 50, 37) and pats.dtype == np.uint16
     assert np.all(pats[7] == pats[7][:, :1])  # horizontal fringes: constant along a row
@@ -31,15 +39,18 @@ def test_gamma_precompensation_makes_the_light_sinusoidal():
     assert np.abs(light - expected).max() < 1e-3
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    (dict(steps=2), "steps must be >= 3"),
-    (dict(frequencies=(1, 20, 4)), "strictly increasing"),
-    (dict(frequencies=(4, 20)), "first frequency must be 1"),
-    (dict(frequencies=(1, 700)), "projector pixels"),
-    (dict(orientation="diagonal"), "orientation"),
-    (dict(bit_depth=12), "bit_depth"),
-    (dict(gamma=0.0), "gamma"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(steps=2), "steps must be >= 3"),
+        (dict(frequencies=(1, 20, 4)), "strictly increasing"),
+        (dict(frequencies=(4, 20)), "first frequency must be 1"),
+        (dict(frequencies=(1, 700)), "projector pixels"),
+        (dict(orientation="diagonal"), "orientation"),
+        (dict(bit_depth=12), "bit_depth"),
+        (dict(gamma=0.0), "gamma"),
+    ],
+)
 def test_invalid_pattern_sets_are_refused_with_the_reason(kwargs, message):
     with pytest.raises(PatternError, match=message):
         PatternSet(**kwargs)
@@ -53,7 +64,9 @@ def test_composite_rides_along_as_the_last_frame():
     light = (pats[16] / 255.0) ** 2.2
     fx, fy = p.code_frequencies
     x, y = np.arange(p.width)[None, :], np.arange(p.height)[:, None]
-    expected = 0.5 + 0.25 * (np.cos(2 * np.pi * 100 * x / p.width) + np.cos(2 * np.pi * (fx * x / p.width + fy * y / p.height)))
+    expected = 0.5 + 0.25 * (
+        np.cos(2 * np.pi * 100 * x / p.width) + np.cos(2 * np.pi * (fx * x / p.width + fy * y / p.height))
+    )
     assert np.abs(light - expected).max() < 0.01  # within 8-bit quantization after gamma
     assert fx * 36 == 100 and fy == 800 / 17  # the code's phase moves 2 pi / 36 per carrier fringe
 

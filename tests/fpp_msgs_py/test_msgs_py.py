@@ -1,4 +1,5 @@
 """fpp_msgs_py against the conventions of depth_image_proc and REP 118."""
+
 import array
 
 import numpy as np
@@ -6,8 +7,15 @@ import pytest
 from sensor_msgs.msg import Image, PointField
 from std_msgs.msg import Header
 
-from fpp_msgs_py import (ImageError, camera_info, cloud_to_xyz, image_to_numpy, intrinsics_from_camera_info,
-                         numpy_to_image, xyz_to_cloud)
+from fpp_msgs_py import (
+    ImageError,
+    camera_info,
+    cloud_to_xyz,
+    image_to_numpy,
+    intrinsics_from_camera_info,
+    numpy_to_image,
+    xyz_to_cloud,
+)
 
 
 @pytest.mark.parametrize("dtype, encoding", [(np.uint8, "mono8"), (np.uint16, "mono16"), (np.float32, "32FC1")])
@@ -29,12 +37,15 @@ def test_padded_rows_and_big_endian_images_are_read():
     np.testing.assert_array_equal(image_to_numpy(msg), a)
 
 
-@pytest.mark.parametrize("change, message", [
-    (dict(encoding="rgb8"), "not supported"),
-    (dict(height=0), "empty"),
-    (dict(step=3), "shorter than a row"),
-    (dict(height=5), "expected step x height"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(encoding="rgb8"), "not supported"),
+        (dict(height=0), "empty"),
+        (dict(step=3), "shorter than a row"),
+        (dict(height=5), "expected step x height"),
+    ],
+)
 def test_malformed_images_are_clear_errors(change, message):
     msg = numpy_to_image(np.zeros((4, 6), np.uint8))
     for key, value in change.items():
@@ -57,8 +68,11 @@ def test_organized_cloud_like_depth_image_proc():
     msg = xyz_to_cloud(xyz, Header(frame_id="camera_optical_frame"), intensity=np.ones((3, 4)))
     assert (msg.height, msg.width, msg.is_dense, msg.point_step, msg.row_step) == (3, 4, False, 16, 64)
     assert [(f.name, f.offset, f.datatype) for f in msg.fields] == [
-        ("x", 0, PointField.FLOAT32), ("y", 4, PointField.FLOAT32), ("z", 8, PointField.FLOAT32),
-        ("intensity", 12, PointField.FLOAT32)]
+        ("x", 0, PointField.FLOAT32),
+        ("y", 4, PointField.FLOAT32),
+        ("z", 8, PointField.FLOAT32),
+        ("intensity", 12, PointField.FLOAT32),
+    ]
     np.testing.assert_array_equal(cloud_to_xyz(msg), xyz)
     assert xyz_to_cloud(np.zeros((2, 2, 3))).is_dense
 
