@@ -25,6 +25,7 @@ import yaml
 
 from fpp_nodes import pictures
 from fpp_nodes.core.calibration import Calibration
+from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.reconstruct import reconstruct_ftp
 from fpp_nodes.core.scenes import plane_scene
 from fpp_nodes.core.simulation import Rig, Scene, render
@@ -190,16 +191,11 @@ def failure_figure(models, rig: Rig, seed: int = 5) -> tuple[np.ndarray, list]:
         tiles, captions = [image, pictures.depth_colours(truth)], [name, "exact depth"]
         for model_name, predict in models:  # each model reads its own single-shot frame (a DepthModel says which)
             depth = predict(capture.images[patterns.input_index(getattr(predict, "reads", "paper"))])
-            ok = np.isfinite(depth) & np.isfinite(truth)
-            d = depth[ok] - truth[ok]
-            numbers = (
-                float(np.sqrt(np.mean(d * d))) if d.size else float("nan"),
-                float(np.mean(np.abs(d) > 1.0)) if d.size else 0.0,
-                ok.sum() / np.isfinite(truth).sum(),
-            )
+            e = ErrorTotals().add(depth, truth, bound=1.0)
+            numbers = (e.rmse, e.share_over, e.coverage)
             table.append((name, model_name, *numbers))
-            error = np.where(ok, depth - truth, np.nan)
-            tiles.append(pictures._colour(error, -5.0, 5.0, pictures.DIVERGING))
+            error = depth - truth
+            tiles.append(pictures.error_colours(error, 5.0))
             captions.append(f"{model_name}: {numbers[1]:.0%} >1mm, cover {numbers[2]:.0%}")
         rows.append(pictures.side_by_side(tiles, captions, height=240))
     width = max(r.shape[1] for r in rows)

@@ -1,13 +1,15 @@
-"""Pictures people look at rather than read, drawn with numpy and cv2 only (the nodes import this).
+"""Pictures people look at rather than read: the demo, `fpp` and the training figures draw them.
 
-    depth_picture   colour-mapped depth (turbo, near = red) with a scale bar in mm
-    error_picture   signed error against ground truth (blue = too near, red = too far), scale bar, RMSE
+    depth_picture   colour-mapped depth (turbo, near = red) with a colour bar in mm
+    error_picture   signed error against ground truth (blue = too near, red = too far), colour bar, RMSE
     cloud_view      the point cloud from an oblique virtual camera, shaded, coloured by depth
     height_profile  depth along one image row for several sources (the paper's Figure 3)
     side_by_side    images in a row with captions (the paper's Figure 2)
 
-Every function returns a BGR uint8 image for cv2.imwrite; NaN marks invalid pixels on the way in and
-is drawn in INVALID_BGR.
+Axes, colour bars, legends and text are matplotlib's, drawn off-screen (Agg, no pyplot state). The
+cloud view is our own z-buffered splatting: matplotlib's 3-D axes cannot draw 300 000 points as a
+closed surface. Every function returns a BGR uint8 image for cv2.imwrite; NaN marks invalid pixels
+on the way in and is drawn in INVALID_BGR.
 """
 
 from __future__ import annotations
@@ -15,54 +17,46 @@ from __future__ import annotations
 import math
 
 import cv2
+import matplotlib
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
 
 from .core.calibration import CameraIntrinsics, back_project
 from .core.metrics import depth_errors
 
 INVALID_BGR = (96, 96, 96)
-PAPER, INK = (255, 255, 255), (0, 0, 0)
-FONT, FONT_SCALE = cv2.FONT_HERSHEY_SIMPLEX, 0.45
-# scale bar layout, right of the image: gap, bar, then tick labels; the bar spans rows
-# [BAR_MARGIN, height - 1 - BAR_MARGIN] of the image, the colour map's end at the top
-BAR_GAP, BAR_WIDTH, BAR_PANEL, BAR_MARGIN = 10, 16, 92, 12
-TITLE_HEIGHT = 24
+PAPER = (255, 255, 255)
+DPI = 100
+TITLE_HEIGHT = 24  # pixels above a picture for its title or caption
+BAR_PANEL = 92  # pixels right of a picture for its colour bar and tick labels
+FONT_SIZE = 8
+# near = red: turbo from far (blue) to near (red); errors: blue = too near, white = 0, red = too far
+DEPTH_COLOURS, ERROR_COLOURS = "turbo_r", "RdBu_r"
 # curve colours (BGR) in the order curves are given: black, then a colour-blind-safe palette
-PALETTE = (
-    (0, 0, 0),
-    (178, 114, 0),
-    (0, 94, 213),
-    (115, 158, 0),
-    (167, 121, 204),
-    (66, 228, 240),
-    (233, 180, 86),
-    (0, 159, 230),
-)
+PALETTE = ((0, 0, 0), (178, 114, 0), (0, 94, 213), (115, 158, 0), (167, 121, 204), (66, 228, 240), (233, 180, 86))
 
 
-def _diverging_lut() -> np.ndarray:
-    """256 x 1 BGR table: blue -> white -> red."""
-    s = (np.arange(256) - 127.5) / 127.5
-    blue, red, white = np.array([172, 84, 33]), np.array([38, 30, 178]), np.array([247, 247, 247])
-    end = np.where(s[:, None] < 0, blue, red)
-    return np.rint(white * (1 - np.abs(s[:, None])) + end * np.abs(s[:, None])).astype(np.uint8)[:, None, :]
+def _colour_map(name: str):
+    return matplotlib.colormaps[name].with_extremes(bad=np.array(INVALID_BGR[::-1]) / 255)
 
 
-DIVERGING = _diverging_lut()
+def colours(values: np.ndarray, first: float, last: float, cmap: str = DEPTH_COLOURS) -> np.ndarray:
+    """BGR uint8 of values mapped linearly from first to last of the colour map, clipped; NaN in
+    INVALID_BGR."""
+    rgba = _colour_map(cmap)(Normalize(first, last, clip=True)(np.ma.masked_invalid(values)), bytes=True)
+    return np.ascontiguousarray(rgba[..., 2::-1])
 
 
-def _colour(values: np.ndarray, first: float, last: float, colormap=cv2.COLORMAP_TURBO) -> np.ndarray:
-    """Values mapped linearly from first (start of the colour map) to last (its end), clipped;
-    NaN in INVALID_BGR. colormap is a cv2 COLORMAP_* or a 256 x 1 BGR table."""
-    values = np.asarray(values, np.float64)
-    finite = np.isfinite(values)
-    span = last - first if abs(last - first) > 1e-12 else 1e-12
-    t = np.clip((np.where(finite, values, first) - first) / span, 0.0, 1.0)
-    index = np.rint(t * 255).astype(np.uint8)
-    picture = cv2.applyColorMap(index if index.ndim == 2 else index[None], colormap)
-    picture = picture.reshape(values.shape + (3,))
-    picture[~finite] = INVALID_BGR
-    return picture
+def depth_colours(depth_mm: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
+    """Depth in the colours of depth_picture, without its bar."""
+    return colours(depth_mm, *depth_range(depth_mm, lo, hi))
+
+
+def error_colours(error_mm: np.ndarray, limit_mm: float) -> np.ndarray:
+    """Signed error in the colours of error_picture, without its bar."""
+    return colours(error_mm, -limit_mm, limit_mm, ERROR_COLOURS)
 
 
 def depth_range(depth: np.ndarray, lo=None, hi=None) -> tuple[float, float]:
@@ -76,83 +70,66 @@ def depth_range(depth: np.ndarray, lo=None, hi=None) -> tuple[float, float]:
     return lo, (hi if hi > lo else lo + 1e-3)
 
 
-def _ticks(a: float, b: float, count: int = 5) -> tuple[np.ndarray, int]:
-    """Round tick values (1, 2, 5 x 10^k apart) within [min(a, b), max(a, b)] and the decimals they need."""
-    lo, hi = min(a, b), max(a, b)
-    raw = max(hi - lo, 1e-9) / max(count - 1, 1)
-    power = 10.0 ** math.floor(math.log10(raw))
-    step = next(m * power for m in (1, 2, 5, 10) if m * power >= raw * 0.999)
-    values = np.arange(math.ceil(lo / step - 1e-9), math.floor(hi / step + 1e-9) + 1) * step
-    return values, max(0, -math.floor(math.log10(step) + 1e-9))
+def _figure(width_px: int, height_px: int) -> Figure:
+    return Figure(figsize=(width_px / DPI, height_px / DPI), dpi=DPI, facecolor="white")
 
 
-def _text(img, text: str, org, scale: float = FONT_SCALE, colour=INK) -> None:
-    cv2.putText(img, text, (int(org[0]), int(org[1])), FONT, scale, colour, 1, cv2.LINE_AA)
+def _axes_at(fig: Figure, left: int, top: int, width: int, height: int):
+    """Axes at a pixel rectangle of the figure (top-left origin)."""
+    w, h = fig.bbox.width, fig.bbox.height
+    return fig.add_axes((left / w, 1 - (top + height) / h, width / w, height / h))
 
 
-def _text_width(text: str, scale: float = FONT_SCALE) -> int:
-    return cv2.getTextSize(text, FONT, scale, 1)[0][0]
+def _bgr(fig: Figure) -> np.ndarray:
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return cv2.cvtColor(np.asarray(canvas.buffer_rgba()), cv2.COLOR_RGBA2BGR)
 
 
-def _titled(img: np.ndarray, title: str | None, height: int = TITLE_HEIGHT) -> np.ndarray:
-    """img with a white strip above it holding the title (left-aligned), if there is one."""
-    if not title:
-        return img
-    strip = np.full((height, img.shape[1], 3), PAPER, np.uint8)
-    _text(strip, title, (4, height - 8))
-    return np.vstack([strip, img])
-
-
-def _with_scale_bar(picture: np.ndarray, first: float, last: float, colormap, unit: str = "mm") -> np.ndarray:
-    """picture with a colour bar on its right: `last` at the top, `first` at the bottom (the colour
-    map's end at the top), round values ticked and labelled."""
-    h, w = picture.shape[:2]
-    canvas = np.full((h, w + BAR_PANEL, 3), PAPER, np.uint8)
-    canvas[:, :w] = picture
-    top, bottom = BAR_MARGIN, h - 1 - BAR_MARGIN
-    rows = np.arange(top, bottom + 1)
-    values = last + (first - last) * (rows - top) / max(bottom - top, 1)
-    x0 = w + BAR_GAP
-    canvas[top : bottom + 1, x0 : x0 + BAR_WIDTH] = _colour(values, first, last, colormap)[:, None]
-    cv2.rectangle(canvas, (x0 - 1, top - 1), (x0 + BAR_WIDTH, bottom + 1), INK, 1)
-    ticks, decimals = _ticks(first, last)
-    for v in ticks:
-        y = top + (last - v) / (last - first) * (bottom - top)
-        cv2.line(canvas, (x0 + BAR_WIDTH, int(round(y))), (x0 + BAR_WIDTH + 4, int(round(y))), INK, 1)
-        _text(canvas, f"{v:.{decimals}f}", (x0 + BAR_WIDTH + 7, y + 4))
-    _text(canvas, unit, (x0, BAR_MARGIN - 3), 0.4)
-    return canvas
-
-
-def depth_colours(depth_mm: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
-    """Colour-mapped depth without a bar: turbo from far (lo..hi: hi = blue) to near (lo = red)."""
-    lo, hi = depth_range(depth_mm, lo, hi)
-    return _colour(depth_mm, hi, lo)
+def _with_colour_bar(
+    values: np.ndarray, lo: float, hi: float, cmap: str, title: str | None, low_on_top: bool = False
+) -> np.ndarray:
+    """values at one picture pixel each (lo..hi over the colour map), a colour bar on the right, a
+    title above."""
+    h, w = values.shape
+    top = TITLE_HEIGHT if title else 0
+    fig = _figure(w + BAR_PANEL, h + top)
+    ax = _axes_at(fig, 0, top, w, h)
+    ax.set_axis_off()
+    image = ax.imshow(values, _colour_map(cmap), Normalize(lo, hi), interpolation="nearest", aspect="auto")
+    bar = fig.colorbar(image, cax=_axes_at(fig, w + 10, top + 12, 16, h - 24))
+    if low_on_top:
+        bar.ax.invert_yaxis()
+    bar.ax.tick_params(labelsize=FONT_SIZE)
+    bar.ax.set_title("mm", fontsize=FONT_SIZE, loc="left")
+    if title:
+        fig.text(4 / fig.bbox.width, 1 - 6 / fig.bbox.height, title, fontsize=FONT_SIZE + 1, va="top")
+    return _bgr(fig)
 
 
 def depth_picture(
     depth_mm: np.ndarray, lo: float | None = None, hi: float | None = None, title: str | None = None
 ) -> np.ndarray:
-    """Colour-mapped depth (near = red) with a scale bar in mm (near at the top); range lo..hi
+    """Colour-mapped depth (near = red) with a colour bar in mm (near at the top); range lo..hi
     defaults to the 1st..99th percentile of the valid pixels; NaN in INVALID_BGR."""
     lo, hi = depth_range(depth_mm, lo, hi)
-    return _titled(_with_scale_bar(depth_colours(depth_mm, lo, hi), hi, lo, cv2.COLORMAP_TURBO, "mm"), title)
+    return _with_colour_bar(np.asarray(depth_mm, np.float64), lo, hi, DEPTH_COLOURS, title, low_on_top=True)
 
 
 def error_picture(
     pred_mm: np.ndarray, truth_mm: np.ndarray, limit_mm: float | None = None, title: str | None = None
 ) -> np.ndarray:
     """pred - truth in a blue-white-red map over [-limit, +limit] (default: the 99th percentile of
-    |error|), scale bar in mm, and a title with the RMSE over the pixels valid in both."""
+    |error|), colour bar in mm, and a title with the RMSE over the pixels valid in both."""
     mask = np.isfinite(pred_mm) & np.isfinite(truth_mm)
     error = np.where(mask, np.asarray(pred_mm, np.float64) - truth_mm, np.nan)
     if limit_mm is None:
         limit_mm = float(np.percentile(np.abs(error[mask]), 99)) if mask.any() else 1.0
     limit_mm = max(limit_mm, 1e-3)
-    picture = _with_scale_bar(_colour(error, -limit_mm, limit_mm, DIVERGING), -limit_mm, limit_mm, DIVERGING, "mm")
     value = depth_errors(pred_mm, truth_mm).rmse_mm
     summary = f"RMSE {value:.3g} mm over {int(mask.sum())} px" if mask.any() else "no pixel valid in both"
-    return _titled(picture, f"{title}: {summary}" if title else f"error, {summary}")
+    title = f"{title}: {summary}" if title else f"error, {summary}"
+    return _with_colour_bar(error, -limit_mm, limit_mm, ERROR_COLOURS, title)
 
 
 def _rotation(tilt_deg: float, turn_deg: float) -> np.ndarray:
@@ -220,8 +197,7 @@ def cloud_view(
         return canvas
     xyz, normals = grid[keep], _normals(grid)[keep]
     if colour == "depth":
-        lo, hi = depth_range(xyz[:, 2], lo, hi)
-        tint = _colour(xyz[:, 2], hi, lo).astype(np.float32)
+        tint = depth_colours(xyz[:, 2], lo, hi).astype(np.float32)
     else:
         tint = np.full((len(xyz), 3), 215.0, np.float32)
     rot = _rotation(-tilt_deg, turn_deg)  # y is down: a view from above turns the top towards us
@@ -282,68 +258,36 @@ def height_profile(
     colours: dict | None = None,
     x_start: int = 0,
 ) -> np.ndarray:
-    """Curves (name -> 1-D array; NaN = no value) on shared axes with ticks and a legend, as the
-    paper's Figure 3 draws the height along one line of the image. Element i is at x_start + i;
-    ylim (low, high) defaults to all finite values. Colours follow PALETTE in the order given (the
-    first, the reference, drawn thin and on top) unless colours (name -> BGR) says otherwise."""
-    width, height = size
-    colour_of = {name: (colours or {}).get(name, PALETTE[k % len(PALETTE)]) for k, name in enumerate(curves)}
-    img = np.full((height, width, 3), PAPER, np.uint8)
-    left, right, top, bottom = 64, 12, 30, 42
-    x0, x1, y0, y1 = left, width - right, top, height - bottom
-    arrays = {name: np.asarray(c, np.float64).ravel() for name, c in curves.items()}
-    n = max((len(a) for a in arrays.values()), default=1)
-    if ylim is None:
-        finite = np.concatenate([a[np.isfinite(a)] for a in arrays.values()] + [np.zeros(0)])
-        lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
-        pad = 0.06 * max(hi - lo, 1e-6)
-        ylim = (lo - pad, hi + pad)
-    ymin, ymax = ylim
-
-    def px(i, value):
-        return (
-            x0 + (x1 - x0) * np.asarray(i) / max(n - 1, 1),
-            y1 - (y1 - y0) * (np.asarray(value) - ymin) / max(ymax - ymin, 1e-12),
+    """Curves (name -> 1-D array; NaN = no value) on shared axes with a legend, as the paper's Figure 3
+    draws the height along one line of the image. Element i is at x_start + i; ylim (low, high)
+    defaults to all finite values. Colours follow PALETTE in the order given (the first, the
+    reference, drawn thin and on top) unless colours (name -> BGR) says otherwise."""
+    fig = _figure(*size)
+    ax = fig.add_axes((64 / size[0], 42 / size[1], 1 - 76 / size[0], 1 - 72 / size[1]))
+    for k, (name, curve) in enumerate(curves.items()):
+        bgr = (colours or {}).get(name, PALETTE[k % len(PALETTE)])
+        curve = np.asarray(curve, np.float64).ravel()
+        ax.plot(
+            x_start + np.arange(curve.size),
+            curve,
+            color=np.array(bgr[::-1]) / 255,
+            label=name,
+            linewidth=1 if k == 0 else 2,
+            zorder=3 if k == 0 else 2,
         )
-
-    cv2.rectangle(img, (x0, y0), (x1, y1), INK, 1)
-    ticks, decimals = _ticks(ymin, ymax)
-    for t in ticks:
-        y = int(round(px(0, t)[1]))
-        cv2.line(img, (x0 - 4, y), (x0, y), INK, 1)
-        cv2.line(img, (x0 + 1, y), (x1 - 1, y), (230, 230, 230), 1)
-        label = f"{t:.{decimals}f}"
-        _text(img, label, (x0 - 7 - _text_width(label), y + 4))
-    xticks, _ = _ticks(x_start, x_start + n - 1)
-    for t in xticks:
-        x = int(round(px(t - x_start, 0)[0]))
-        cv2.line(img, (x, y1), (x, y1 + 4), INK, 1)
-        _text(img, f"{t:.0f}", (x - _text_width(f"{t:.0f}") / 2, y1 + 17))
-    _text(img, xlabel, ((x0 + x1 - _text_width(xlabel)) / 2, height - 6))
-    _text(img, ylabel, (4, top - 10))
-    heading = title if title is not None else (f"along row {row_index}" if row_index is not None else "")
-    _text(img, heading, (x1 - _text_width(heading), top - 10))
-    plot = img[y0 + 1 : y1, x0 + 1 : x1]  # curves are clipped to the axes
-    for k, (name, a) in reversed(list(enumerate(arrays.items()))):  # the first (the reference) on top
-        xs, ys = px(np.arange(len(a)), a)
-        ok = np.isfinite(ys)
-        breaks = np.flatnonzero(np.diff(ok.astype(np.int8)) != 0) + 1
-        for segment in np.split(np.arange(len(a)), breaks):
-            if ok[segment[0]]:
-                pts = np.stack([xs[segment] - x0 - 1, ys[segment] - y0 - 1], axis=1)
-                pts = np.clip(np.rint(pts), -10_000, 10_000).astype(np.int32)
-                cv2.polylines(plot, [pts], False, colour_of[name], 1 if k == 0 else 2, cv2.LINE_AA)
-    # legend, top right inside the axes
-    names = list(arrays)
-    box_w = 34 + max((_text_width(s) for s in names), default=0)
-    bx, by = x1 - box_w - 6, y0 + 6
-    cv2.rectangle(img, (bx, by), (x1 - 6, by + 8 + 16 * len(names)), PAPER, -1)
-    cv2.rectangle(img, (bx, by), (x1 - 6, by + 8 + 16 * len(names)), (150, 150, 150), 1)
-    for k, name in enumerate(names):
-        y = by + 14 + 16 * k
-        cv2.line(img, (bx + 6, y - 4), (bx + 26, y - 4), colour_of[name], 3)
-        _text(img, name, (bx + 30, y))
-    return img
+    if ylim is not None:
+        ax.set_ylim(*ylim)
+    ax.grid(axis="y", color="0.9")
+    ax.set_xlabel(xlabel, fontsize=FONT_SIZE + 1)
+    ax.set_ylabel(ylabel, fontsize=FONT_SIZE + 1)
+    ax.tick_params(labelsize=FONT_SIZE)
+    ax.set_title(
+        title if title is not None else (f"along row {row_index}" if row_index is not None else ""),
+        fontsize=FONT_SIZE + 1,
+        loc="right",
+    )
+    ax.legend(loc="upper right", fontsize=FONT_SIZE)
+    return _bgr(fig)
 
 
 def profile_row(depth_mm: np.ndarray) -> int:
@@ -358,20 +302,14 @@ def profile_row(depth_mm: np.ndarray) -> int:
     return int(np.argmax(spread)) if valid.any() else depth.shape[0] // 2
 
 
-def side_by_side(
-    images: list,
-    captions: list | None = None,
-    height: int | None = None,
-    gap: int = 6,
-    caption_height: int = TITLE_HEIGHT,
-) -> np.ndarray:
+def side_by_side(images: list, captions: list | None = None, height: int | None = None, gap: int = 6) -> np.ndarray:
     """Images (BGR or grey uint8) in a row, scaled to one height (default: the first's), each under
     its caption if captions are given."""
     if captions is not None and len(captions) != len(images):
         raise ValueError(f"{len(images)} images but {len(captions)} captions")
     height = height or images[0].shape[0]
     tiles = []
-    for k, img in enumerate(images):
+    for img in images:
         img = np.asarray(img)
         if img.dtype != np.uint8:
             raise ValueError(f"side_by_side takes uint8 images, got {img.dtype}")
@@ -379,9 +317,18 @@ def side_by_side(
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
         if img.shape[0] != height:
             w = max(1, round(img.shape[1] * height / img.shape[0]))
-            img = cv2.resize(
-                img, (w, height), interpolation=cv2.INTER_AREA if img.shape[0] > height else cv2.INTER_LINEAR
-            )
-        tile = img if captions is None else _titled(img, captions[k] or " ", caption_height)
-        tiles += [tile, np.full((tile.shape[0], gap, 3), PAPER, np.uint8)]
-    return np.hstack(tiles[:-1])
+            shrink = img.shape[0] > height
+            img = cv2.resize(img, (w, height), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+        tiles.append(img)
+    width = sum(t.shape[1] for t in tiles) + gap * (len(tiles) - 1)
+    top = TITLE_HEIGHT if captions is not None else 0
+    fig = _figure(width, height + top)
+    left = 0
+    for k, tile in enumerate(tiles):
+        ax = _axes_at(fig, left, top, tile.shape[1], height)
+        ax.set_axis_off()
+        ax.imshow(tile[..., ::-1], interpolation="nearest", aspect="auto")
+        if captions is not None:
+            fig.text((left + 4) / width, 1 - 6 / (height + top), captions[k] or "", fontsize=FONT_SIZE + 1, va="top")
+        left += tile.shape[1] + gap
+    return _bgr(fig)
