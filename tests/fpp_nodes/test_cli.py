@@ -163,34 +163,18 @@ def test_reconstruct_with_the_single_shot_network(tmp_path):
     Calibration(
         shipped.camera, shipped.model, replace(shipped.patterns, single_shot="paper"), shipped.reference_depth_mm
     ).save(paper)
-    r = fpp(
-        "reconstruct",
-        tmp_path / "scene",
-        "--calibration",
-        default_calibration_path(),
-        "--method",
-        "cnn",
-        "--model",
-        paper_model_path(),
-        "--out",
-        tmp_path / "x",
-    )
+
+    def cnn(calibration, *model, out="x"):
+        args = ("--calibration", calibration, "--method", "cnn", *model, "--out", tmp_path / out)
+        return fpp("reconstruct", tmp_path / "scene", *args)
+
+    r = cnn(default_calibration_path(), "--model", paper_model_path())
     assert r.returncode == 2 and "reads the 'paper' single-shot frame" in r.stderr, r.stderr
     for name, calibration, model in (
         ("paper", paper, ["--model", paper_model_path()]),
         ("default", default_calibration_path(), []),
     ):
-        r = fpp(
-            "reconstruct",
-            tmp_path / "scene",
-            "--calibration",
-            calibration,
-            "--method",
-            "cnn",
-            *model,
-            "--out",
-            tmp_path / name,
-        )
+        r = cnn(calibration, *model, out=name)
         assert r.returncode == 0 and (tmp_path / name / "points.ply").is_file(), r.stderr
         depth = np.load(tmp_path / name / "depth_mm.npy")
         ok = np.isfinite(depth) & lit
@@ -198,18 +182,7 @@ def test_reconstruct_with_the_single_shot_network(tmp_path):
             assert ok.sum() > 0.95 * lit.sum() and np.sqrt(np.mean((depth - truth)[ok] ** 2)) < 0.6
         else:
             assert np.count_nonzero(np.abs(depth - truth)[ok] > 1.0) <= 0.01 * max(ok.sum(), 1)
-    r = fpp(
-        "reconstruct",
-        tmp_path / "scene",
-        "--calibration",
-        default_calibration_path(),
-        "--method",
-        "cnn",
-        "--model",
-        tmp_path / "missing.onnx",
-        "--out",
-        tmp_path / "x",
-    )
+    r = cnn(default_calibration_path(), "--model", tmp_path / "missing.onnx")
     assert r.returncode == 2 and "does not exist" in r.stderr
 
 

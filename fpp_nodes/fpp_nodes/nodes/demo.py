@@ -25,6 +25,7 @@ from fpp_msgs_py import Qos, Topics, cloud_to_xyz, image_to_numpy, stamp_ns
 from .. import pictures
 from ..core import io
 from ..core.calibration import Calibration, default_calibration_path
+from ..core.metrics import depth_errors
 from ..processes import start_process, stop_process
 
 
@@ -121,11 +122,10 @@ def per_cloud(robot: DemoRobot, frames_per_sequence: int | None = None) -> list[
     return rows
 
 
-def cloud_rmse_mm(cloud, truth) -> tuple[float, float]:
-    z = cloud_to_xyz(cloud)[..., 2]
-    ok = np.isfinite(z) & np.isfinite(truth)
-    rmse = float(np.sqrt(np.mean((z[ok] - truth[ok]) ** 2)) * 1000) if ok.any() else float("nan")  # no depth: no error
-    return rmse, ok.sum() / np.isfinite(truth).sum()
+def cloud_rmse_mm(cloud, truth_m) -> tuple[float, float]:
+    """RMSE (mm) of a cloud's depth against the truth (NaN: no depth), and its coverage of the truth."""
+    e = depth_errors(cloud_to_xyz(cloud)[..., 2] * 1000.0, truth_m * 1000.0)
+    return e.rmse_mm, e.coverage
 
 
 def write_pictures(out: Path, clouds: list, truth_m: np.ndarray, prefix: str, label: str) -> np.ndarray | None:

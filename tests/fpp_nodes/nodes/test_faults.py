@@ -25,7 +25,7 @@ from fpp_nodes.core.sequence import ShownPatterns
 from fpp_nodes.core.simulation import Rig, render
 
 from rosgraph import Diagnostics
-from test_ros_sensor import check_clouds, collect, rmse_mm
+from test_ros_sensor import check_clouds, collect, projector_and_camera, rmse_mm
 
 SHIPPED_CALIBRATION = Path(default_calibration_path())
 
@@ -64,20 +64,10 @@ def test_bad_frames_into_the_multi_shot_path(ros_graph):
     procs, robot = ros_graph
     nodes = [procs.start("capture_sequence"), procs.start("fpp_depth")]
     patterns, capture, lines = captured("objects", 8)
-    pattern_pub = robot.node.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)
-    camera_pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
     calibration_pub = robot.node.create_publisher(String, Topics.CALIBRATION, Qos.LATCHED)
     clouds = collect(robot, Topics.POINTS, PointCloud2)
     diagnostics = Diagnostics(robot)
-    assert robot.spin_until(
-        lambda: (
-            pattern_pub.get_subscription_count()
-            and camera_pub.get_subscription_count()
-            and robot.node.count_publishers(Topics.POINTS)
-        ),
-        30,
-    )
-    time.sleep(1.0)  # let discovery settle both ways
+    pattern_pub, camera_pub = projector_and_camera(robot)
     calibration_pub.publish(String(data="format: fpp_calibration\nversion: 1\nmodel: [1, 2"))  # corrupt: ignored
     good = [capture.images[i] for i in range(patterns.count)]
     bad = bad_frames(capture.images[5])

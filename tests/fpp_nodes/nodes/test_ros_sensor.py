@@ -8,6 +8,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Header
 
 from fpp_msgs_py import Frames, Qos, Topics, cloud_to_xyz, header_at, image_to_numpy, numpy_to_image, stamp_ns
+from fpp_nodes.core.metrics import depth_errors
 from fpp_nodes.core.patterns import pattern_images
 from fpp_nodes.core.scenes import make_scene
 from fpp_nodes.core.simulation import Rig, render
@@ -20,9 +21,24 @@ def collect(robot, topic, msg_type, qos=Qos.LARGE):
 
 
 def rmse_mm(cloud: PointCloud2, truth_m: np.ndarray):
-    z = cloud_to_xyz(cloud)[..., 2]
-    ok = np.isfinite(z) & np.isfinite(truth_m)
-    return float(np.sqrt(np.mean((z[ok] - truth_m[ok]) ** 2)) * 1000), ok.sum() / np.isfinite(truth_m).sum()
+    """RMSE (mm) of a cloud's depth against the truth, and its coverage of the truth's pixels."""
+    e = depth_errors(cloud_to_xyz(cloud)[..., 2] * 1000.0, truth_m * 1000.0)
+    return e.rmse_mm, e.coverage
+
+
+def projector_and_camera(robot):
+    """Publishers playing projector and camera, once capture_sequence hears both and fpp_depth's
+    points are discovered (then a second for discovery to settle both ways)."""
+    pattern_pub = robot.node.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)
+    camera_pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
+    heard = (
+        pattern_pub.get_subscription_count,
+        camera_pub.get_subscription_count,
+        lambda: robot.node.count_publishers(Topics.POINTS),
+    )
+    assert robot.spin_until(lambda: all(f() for f in heard), 30)
+    time.sleep(1.0)
+    return pattern_pub, camera_pub
 
 
 def check_clouds(robot, clouds, truth, count=2, timeout=60):
@@ -110,18 +126,8 @@ def test_broken_sequences_over_dds_are_dropped_never_mixed(ros_graph):
     patterns = rig.pattern_set()
     capture = render(rig, make_scene(rig, "objects", 8), patterns, np.random.default_rng(8))
     lines = pattern_images(patterns)
-    pattern_pub = robot.node.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)
-    camera_pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
     clouds = collect(robot, Topics.POINTS, PointCloud2)
-    assert robot.spin_until(
-        lambda: (
-            pattern_pub.get_subscription_count()
-            and camera_pub.get_subscription_count()
-            and robot.node.count_publishers(Topics.POINTS)
-        ),
-        30,
-    )
-    time.sleep(1.0)  # let discovery settle both ways
+    pattern_pub, camera_pub = projector_and_camera(robot)
     k = patterns.count
     plays = [
         list(range(k)),  # complete
