@@ -21,6 +21,7 @@ setup(
         "console_scripts": [
             "fpp = fpp_nodes.cli:main",
             "pattern_projector = fpp_nodes.nodes.pattern_projector:main",
+            "projector_display = fpp_nodes.nodes.projector_display:main",
             "fringe_camera_sim = fpp_nodes.nodes.fringe_camera_sim:main",
             "capture_sequence = fpp_nodes.nodes.capture_sequence:main",
             "fpp_depth = fpp_nodes.nodes.fpp_depth:main",

@@ -13,6 +13,9 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 class Topics:
     PATTERN = "projector/pattern"  # sensor_msgs/Image: the line of the pattern being shown, stamped when shown
+    # sensor_msgs/Image: the same pattern, republished by projector_display stamped right after the flip
+    # that put it on screen (remap capture_sequence's projector/pattern to it on a real rig)
+    DISPLAYED = "projector/displayed"
     CAMERA_IMAGE = "camera/image_raw"  # sensor_msgs/Image: a fringe image (mono8 / mono16)
     CAMERA_INFO = "camera/camera_info"
     SEQUENCE = "fringe_sequence"  # sensor_msgs/Image: a complete sequence, K images stacked vertically

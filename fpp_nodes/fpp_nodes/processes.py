@@ -18,6 +18,11 @@ def start_process(args: list[str], env: dict, stdout, stderr=subprocess.STDOUT) 
 def stop_process(proc: subprocess.Popen, timeout: float = 10.0) -> None:
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGINT)
+    _wait_or_kill(proc, timeout)
+
+
+def _wait_or_kill(proc: subprocess.Popen, timeout: float) -> None:
+    """One SIGINT only: a second one can land in the node's own shutdown."""
     try:
         proc.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -38,11 +43,12 @@ class NodeProcesses:
             RCUTILS_LOGGING_BUFFERED_STREAM="0",
         )
 
-    def start(self, executable: str, *ros_args: str) -> subprocess.Popen:
+    def start(self, executable: str, *ros_args: str, env: dict | None = None) -> subprocess.Popen:
+        """env: more environment variables for this process only."""
         log = open(self.logs_dir / f"{executable}-{len(self.procs)}.log", "w")
         # ros2 run and the wheels' bootstrapper both exec, so this pid is the node's process
         args = ["ros2", "run", "fpp_nodes", executable] + (["--ros-args", *ros_args] if ros_args else [])
-        proc = start_process(args, self.env, log)
+        proc = start_process(args, {**self.env, **(env or {})}, log)
         self.procs.append((executable, proc, log))
         return proc
 
@@ -55,5 +61,5 @@ class NodeProcesses:
             if proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGINT)
         for _, proc, log in self.procs:
-            stop_process(proc, timeout)
+            _wait_or_kill(proc, timeout)
             log.close()
