@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fpp_nodes"))
-from fpp_nodes.core.calibration import back_project, pixel_grid  # noqa: E402
+from fpp_nodes.core.calibration import back_project  # noqa: E402
 from fpp_nodes.core.metrics import depth_errors  # noqa: E402
 from fpp_nodes.core.phase import phase_and_modulation, phase_noise, unwrap_temporal, wrapped_phase  # noqa: E402
 from fpp_nodes.core.reconstruct import PspReconstructor, multi_frequency_phase, trusted_depth, unsaturated  # noqa: E402
@@ -112,7 +112,7 @@ def main():
     calibration, _ = simulated_calibration(rig, patterns, seed=0)
     ours = PspReconstructor(calibration, threads=args.threads)
     sinus = opencv_psp(rig, patterns.frequencies[-1]) if with_opencv else None
-    u, v = pixel_grid((rig.height, rig.width))
+    u, v = rig.camera().ideal_pixels()
     print(describe({"cv2": cv2.getNumThreads(), "ours (row bands)": len(ours._bands)}, libs=("numpy", "cv2")))
     print(
         f"640x480; median of {args.repeat} runs"

@@ -33,7 +33,7 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from fpp_nodes.core.calibration import Calibration, default_calibration_path, pixel_grid
+from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.patterns import CODE_ORDERS
 from fpp_nodes.core.phase import phase_sums
 from fpp_nodes.core.reconstruct import PspReconstructor, full_scale
@@ -154,7 +154,7 @@ def phase_targets(images: np.ndarray, rec, calibration: Calibration) -> dict:
         "fringe": np.stack([y * scale, x * scale]).astype(np.float16),
     }
     if patterns.single_shot == "composite":
-        u, v = pixel_grid(rec.phase.shape)
+        u, v = calibration.camera.ideal_pixels()
         code = calibration.code_row_phase_at_depth(rec.depth_mm, u, v) + rec.phase / CODE_ORDERS
         half = 0.5 * np.hypot(y, x) * scale
         targets["code"] = np.stack([half * np.sin(code), half * np.cos(code)]).astype(np.float16)

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 import yaml
 
-from fpp_nodes.core.calibration import Calibration, pixel_grid
+from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import network_input, trusted_single_shot
 from fpp_nodes.core.reconstruct import CompositeDecoder, reconstruct_ftp
@@ -128,7 +128,7 @@ def main(argv=None):
         model, cfg = model_from_checkpoint(ckpt)
         models.append((cfg.arch.upper(), model, cfg.downsample, ckpt["train_seconds"], f"{ckpt['epoch']}/{cfg.epochs}"))
     columns = [m[0] for m in models] + ["FTP", "multi-shot"]
-    u, v = pixel_grid(calibration.camera.shape)
+    u, v = calibration.camera.ideal_pixels()
     table = {}
     for split in ("train", "val", "test"):
         errs = {c: (ErrorTotals(), ErrorTotals()) for c in columns}  # vs label, vs exact depth

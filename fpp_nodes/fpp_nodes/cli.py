@@ -2,7 +2,7 @@
 
 fpp patterns    the pattern set as PNG files at the projector's resolution, in projection order
 fpp simulate    rig + scene -> fringe images + ground truth
-fpp calibrate   captures of planes at known depths -> calibration file
+fpp calibrate   captures of planes at known depths, or of a checkerboard at free poses -> calibration file
 fpp reconstruct fringe images -> depth (.npy/.tiff), point cloud (.ply), pictures (.png)
 fpp evaluate    depth vs ground truth -> RMSE, MRE, coverage (and pictures of the error)
 fpp demo        all of the above on the simulated rig, with a table of the results
@@ -22,12 +22,13 @@ from tqdm import tqdm
 
 from . import pictures
 from .core import io
+from .core.board import LENS_MODELS, Board, BoardPose, calibrate_from_board, horizontal_patterns
 from .core.calibration import Calibration, CalibrationError, CameraIntrinsics, back_project
 from .core.metrics import depth_errors
 from .core.patterns import PatternSet, generate_patterns
 from .core.reconstruct import CompositeDecoder, PspReconstructor, QualityLimits, Reconstruction, reconstruct_ftp
-from .core.scenes import SCENE_KINDS, SURFACE_DEPTH_MM, make_scene, scene_from_file
-from .core.simulation import Rig, render
+from .core.scenes import SCENE_KINDS, SURFACE_DEPTH_MM, board_poses, board_scene, make_scene, scene_from_file
+from .core.simulation import Rig, render, render_pose
 from .core.workflow import (
     CALIBRATION_DEPTHS_MM,
     calibrate_from_planes,
@@ -39,7 +40,7 @@ from .core.workflow import (
 
 
 def _rig(args) -> Rig:
-    return Rig(noise_sigma=args.noise, blur_sigma_px=args.blur)
+    return Rig(noise_sigma=args.noise, blur_sigma_px=args.blur, distortion=args.distortion)
 
 
 def _write_capture(folder: Path, capture, rig: Rig, patterns: PatternSet, scene_name: str, seed: int) -> None:
@@ -85,6 +86,8 @@ def cmd_simulate(args) -> None:
     rig = _rig(args)
     patterns = rig.pattern_set()
     out = Path(args.out)
+    if args.board:
+        return _simulate_board(rig, patterns, Board.parse(args.board), args.count, args.seed, out)
     for i in tqdm(range(args.count), desc="simulate", disable=None):
         seed = args.seed + i
         if args.scene in SCENE_KINDS:
@@ -97,12 +100,36 @@ def cmd_simulate(args) -> None:
     print(f"wrote {args.count} capture(s) of {patterns.count} images to {out}")
 
 
+def _simulate_board(rig: Rig, patterns: PatternSet, board: Board, count: int, seed: int, out: Path) -> None:
+    """count poses of a calibration board, each in a folder as fpp calibrate --board reads them."""
+    rng = np.random.default_rng(seed)
+    sets = [patterns, horizontal_patterns(patterns)]
+    for i, (rotation, translation) in enumerate(tqdm(board_poses(rig, board, count, rng), desc="poses", disable=None)):
+        image, (vertical, horizontal) = render_pose(rig, board_scene(rig, board, rotation, translation), sets, rng)
+        folder = out / f"pose_{i:02d}"
+        io.write_stack(folder / "vertical", vertical)
+        io.write_stack(folder / "horizontal", horizontal)
+        cv2.imwrite(str(folder / "board.png"), image)
+    (out / "sensor.yaml").write_text(
+        yaml.safe_dump({"camera": rig.camera().to_dict(), "patterns": patterns.to_dict()}, sort_keys=False)
+    )
+    print(f"wrote {count} board poses (board.png, vertical/, horizontal/) and sensor.yaml to {out}")
+
+
+def _read_pose(folder) -> BoardPose:
+    folder = Path(folder)
+    if not (folder / "board.png").is_file():
+        raise io.InputError(f"pose {folder}: no board.png (the board under full projector light)")
+    stacks = [io.read_stack(io.image_paths([folder / name])) for name in ("vertical", "horizontal")]
+    return BoardPose(folder.name, io.read_image(folder / "board.png"), *stacks)
+
+
 def _read_sensor(path) -> tuple[CameraIntrinsics, PatternSet]:
     try:
         data = yaml.safe_load(Path(path).read_text())
         cam = data["camera"]
         return (
-            CameraIntrinsics(**{k: cam[k] for k in ("width", "height", "fx", "fy", "cx", "cy")}),
+            CameraIntrinsics.from_dict(cam),
             PatternSet.from_dict(data["patterns"]),
         )
     except OSError as e:
@@ -116,6 +143,8 @@ def _read_sensor(path) -> tuple[CameraIntrinsics, PatternSet]:
 
 def cmd_calibrate(args) -> None:
     camera, patterns = _read_sensor(args.sensor)
+    if args.board:
+        return _calibrate_board(args, Board.parse(args.board), patterns)
     stacks, depths = [], []
     for item in tqdm(args.planes, desc="read planes", disable=None):
         folder, sep, depth = item.rpartition(":")
@@ -130,6 +159,20 @@ def cmd_calibrate(args) -> None:
     calibration.save(args.out)
     for z, r in zip(depths, residuals):
         print(f"plane {z:8.2f} mm: fit RMSE {r * 1000:7.2f} um")
+    print(f"wrote {args.out}")
+
+
+def _calibrate_board(args, board: Board, patterns: PatternSet) -> None:
+    poses = [_read_pose(folder) for folder in tqdm(args.planes, desc="read poses", disable=None)]
+    calibration, report = calibrate_from_board(poses, board, patterns, args.reference_depth, args.lens)
+    calibration.save(args.out)
+    print(f"{'pose':24} {'depth mm':>9} {'camera px':>10} {'projector px':>13} {'corners':>8}")
+    for p in report.poses:
+        print(f"{p.name:24} {p.depth_mm:9.1f} {p.camera_px:10.3f} {p.projector_px:13.3f} {p.corners:8d}")
+    for name, c in (("camera", calibration.camera), ("projector", report.projector)):
+        lens = ", ".join(f"{k:.4g}" for k in c.distortion)
+        print(f"{name}: f {c.fx:.1f} x {c.fy:.1f} px, principal point ({c.cx:.1f}, {c.cy:.1f}), distortion {lens}")
+    print(f"projector {np.linalg.norm(report.translation_mm):.1f} mm from the camera; RMS reprojection errors above")
     print(f"wrote {args.out}")
 
 
@@ -310,6 +353,16 @@ def cmd_demo(args) -> None:
     print("  " + ", ".join(p.name for p in written) + " in each scene's folder")
 
 
+def _five_numbers(text: str) -> tuple:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not five comma-separated numbers") from None
+    if len(values) != 5:
+        raise argparse.ArgumentTypeError(f"{text!r}: give five numbers K1,K2,P1,P2,K3")
+    return values
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fpp", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -338,14 +391,43 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--count", type=int, default=1, help="captures with seeds seed, seed+1, ...")
     p.add_argument("--noise", type=float, default=Rig.noise_sigma, help="camera noise, counts")
     p.add_argument("--blur", type=float, default=Rig.blur_sigma_px, help="defocus blur sigma, pixels")
+    p.add_argument(
+        "--distortion",
+        type=_five_numbers,
+        default=Rig.distortion,
+        metavar="K1,K2,P1,P2,K3",
+        help="the camera lens's distortion (OpenCV's model; default none)",
+    )
+    p.add_argument(
+        "--board",
+        metavar="COLSxROWS:SQUARE_MM",
+        help="instead of a scene: --count poses of this checkerboard (inner corners) for fpp calibrate --board",
+    )
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("calibrate", help="fit the phase-to-depth model from captures of planes")
-    p.add_argument("planes", nargs="+", metavar="FOLDER:DEPTH_MM", help="fringe images of a plane square to the camera")
-    p.add_argument(
-        "--sensor", required=True, help="YAML with 'camera' intrinsics and 'patterns' (fpp simulate writes one)"
+    p = sub.add_parser(
+        "calibrate", help="fit the phase-to-depth model from planes at known depths, or from a board at free poses"
     )
+    p.add_argument(
+        "planes",
+        nargs="+",
+        metavar="FOLDER:DEPTH_MM or POSE_FOLDER",
+        help="fringe images of a plane square to the camera; with --board: a pose's folder "
+        "(board.png, vertical/, horizontal/)",
+    )
+    p.add_argument(
+        "--sensor",
+        required=True,
+        help="YAML with 'camera' intrinsics and 'patterns' (fpp simulate writes one; with --board only the "
+        "camera's size and the patterns are used)",
+    )
+    p.add_argument(
+        "--board",
+        metavar="COLSxROWS:SQUARE_MM",
+        help="calibrate camera and projector from this checkerboard (inner corners, square side in mm)",
+    )
+    p.add_argument("--lens", choices=tuple(LENS_MODELS), default="k1", help="with --board: the distortion terms fitted")
     p.add_argument("--reference-depth", type=float, default=None, help="background depth in mm (default: median plane)")
     p.add_argument("--out", default="calibration.yaml")
     p.set_defaults(func=cmd_calibrate)

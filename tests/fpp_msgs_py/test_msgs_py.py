@@ -80,4 +80,14 @@ def test_organized_cloud_like_depth_image_proc():
 def test_camera_info_from_intrinsics():
     msg = camera_info(640, 480, 4955.0, 4955.0, 319.5, 239.5)
     assert msg.k[0] == 4955.0 and msg.k[2] == 319.5 and msg.p[6] == 239.5 and list(msg.d) == [0.0] * 5
-    assert intrinsics_from_camera_info(msg) == dict(width=640, height=480, fx=4955.0, fy=4955.0, cx=319.5, cy=239.5)
+    assert intrinsics_from_camera_info(msg) == dict(
+        width=640, height=480, fx=4955.0, fy=4955.0, cx=319.5, cy=239.5, distortion=[0.0] * 5
+    )
+    lens = camera_info(640, 480, 4955.0, 4955.0, 319.5, 239.5, distortion=(-0.9, 4.0, 1e-3, -2e-3, 0.0))
+    assert lens.distortion_model == "plumb_bob" and intrinsics_from_camera_info(lens)["distortion"] == [
+        -0.9,
+        4.0,
+        1e-3,
+        -2e-3,
+        0.0,
+    ]

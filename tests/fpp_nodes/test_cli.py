@@ -206,3 +206,27 @@ def test_patterns_writes_what_a_projector_shows(tmp_path):
     Calibration.load(default_calibration_path()).with_papers_single_shot().save(tmp_path / "paper.yaml")
     assert fpp("patterns", "--calibration", tmp_path / "paper.yaml", "--out", tmp_path / "q").returncode == 0
     assert len(list((tmp_path / "q").glob("pattern_*.png"))) == 16
+
+
+def test_board_calibration_from_pose_folders(tmp_path):
+    """fpp simulate --board writes pose folders as a user records them; fpp calibrate --board reads them,
+    prints each pose's reprojection errors and writes a calibration with the lens's distortion."""
+    import yaml
+
+    lens = "-0.9,0,2e-4,-2e-4,0"
+    r = fpp("simulate", "--board", "9x7:8", "--count", 6, f"--distortion={lens}", "--seed", 2, "--out", tmp_path / "b")
+    assert r.returncode == 0, r.stderr
+    poses = sorted((tmp_path / "b").glob("pose_*"))
+    assert len(poses) == 6 and all((p / "board.png").is_file() and (p / "horizontal").is_dir() for p in poses)
+    args = ("calibrate", "--board", "9x7:8", *poses, "--sensor", tmp_path / "b" / "sensor.yaml")
+    r = fpp(*args, "--out", tmp_path / "cal.yaml")
+    assert r.returncode == 0, r.stderr
+    rows = [line.split() for line in r.stdout.splitlines() if line.startswith("pose_")]
+    assert len(rows) == 6 and all(float(row[2]) < 0.1 for row in rows), r.stdout  # camera px per pose
+    camera = yaml.safe_load((tmp_path / "cal.yaml").read_text())["camera"]
+    assert abs(camera["distortion"][0] + 0.9) < 0.15 and camera["distortion"][1:] == [0.0] * 4  # k1 only
+    (poses[3] / "board.png").unlink()
+    r = fpp(*args, "--out", tmp_path / "x.yaml")
+    assert r.returncode == 2 and "pose_03: no board.png" in r.stderr and "Traceback" not in r.stderr
+    r = fpp("simulate", "--board", "9x7:8", "--distortion=1,2", "--out", tmp_path / "c")
+    assert r.returncode == 2 and "five numbers" in r.stderr

@@ -136,38 +136,97 @@ def fit_rational_model(u, v, phase, depth, iterations: int = 3, gauge_weight: fl
     return model
 
 
+DISTORTION_TERMS = ("k1", "k2", "p1", "p2", "k3")  # OpenCV's plumb bob (ROS's CameraInfo "plumb_bob")
+
+
 @dataclass
 class CameraIntrinsics:
+    """A pinhole camera with lens distortion (OpenCV's model: radial k1, k2, k3, tangential p1, p2).
+
+    The phase-to-depth model is written in ideal pixel coordinates (ideal_pixels: where each pixel's
+    ray would land in the same camera without distortion), so that it stays rational; depth is along
+    the optical axis, and XYZ = depth * (x/z, y/z, 1) of each pixel's true ray (rays)."""
+
     width: int
     height: int
     fx: float
     fy: float
     cx: float
     cy: float
+    distortion: tuple = (0.0, 0.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self):
         if self.width < 1 or self.height < 1:
             raise CalibrationError(f"camera size must be positive, got {self.width}x{self.height}")
         if not (self.fx > 0 and self.fy > 0):
             raise CalibrationError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        self.distortion = tuple(float(k) for k in self.distortion)
+        if len(self.distortion) != len(DISTORTION_TERMS) or not np.all(np.isfinite(self.distortion)):
+            raise CalibrationError(f"distortion must be 5 finite numbers {DISTORTION_TERMS}, got {self.distortion}")
 
     @property
     def shape(self) -> tuple[int, int]:
         """(height, width): an image's shape."""
         return self.height, self.width
 
+    def matrix(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
     def rays(self) -> tuple[np.ndarray, np.ndarray]:
         """x/z and y/z of every pixel's viewing ray (optical frame: x right, y down, z forward)."""
+        if any(self.distortion):
+            return _undistorted_rays(*astuple(self))
         u, v = pixel_grid(self.shape)
         return np.broadcast_to((u - self.cx) / self.fx, self.shape), np.broadcast_to(
             (v - self.cy) / self.fy, self.shape
         )
 
+    def ideal_pixels(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each pixel's coordinates in the same camera without distortion: the phase-to-depth model's
+        (u, v). Without distortion the pixel grid itself (1 x W and H x 1, broadcasting)."""
+        if not any(self.distortion):
+            return pixel_grid(self.shape)
+        x, y = self.rays()
+        return self.fx * x + self.cx, self.fy * y + self.cy
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates (u, v) of (..., 3) points in the optical frame, distortion applied."""
+        x, y = points[..., 0] / points[..., 2], points[..., 1] / points[..., 2]
+        k1, k2, p1, p2, k3 = self.distortion
+        if any(self.distortion):
+            r2 = x * x + y * y
+            radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            x, y = (
+                x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+                y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y,
+            )
+        return self.fx * x + self.cx, self.fy * y + self.cy
+
     def to_dict(self) -> dict:
-        return {
+        d = {
             k: (int(getattr(self, k)) if k in ("width", "height") else float(getattr(self, k)))
             for k in ("width", "height", "fx", "fy", "cx", "cy")
         }
+        return {**d, "distortion": list(self.distortion)} if any(self.distortion) else d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> CameraIntrinsics:
+        """From to_dict's mapping; a camera without 'distortion' has none."""
+        return cls(
+            **{k: d[k] for k in ("width", "height", "fx", "fy", "cx", "cy")}, distortion=d.get("distortion", (0,) * 5)
+        )
+
+
+@lru_cache(maxsize=4)
+def _undistorted_rays(*camera) -> tuple[np.ndarray, np.ndarray]:
+    """A distorted camera's rays, by OpenCV's iterative undistortion run to convergence (1e-12)."""
+    cam = CameraIntrinsics(*camera)
+    u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
+    pixels = np.stack([u.ravel(), v.ravel()], axis=-1)[:, None, :]
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
+    xy = cv2.undistortPoints(pixels, cam.matrix(), np.array(cam.distortion), None, None, None, criteria)
+    xy = xy.reshape(cam.height, cam.width, 2)
+    return xy[..., 0], xy[..., 1]
 
 
 def back_project(depth: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
@@ -244,7 +303,7 @@ class Calibration:
         if missing:
             raise CalibrationError(f"calibration is missing {', '.join(missing)}")
         try:
-            camera = CameraIntrinsics(**{k: d["camera"][k] for k in ("width", "height", "fx", "fy", "cx", "cy")})
+            camera = CameraIntrinsics.from_dict(d["camera"])
             model = RationalModel(d["model"]["c"], d["model"]["d"])
             patterns = PatternSet.from_dict(d["patterns"])
             reference = float(d["reference_depth_mm"])

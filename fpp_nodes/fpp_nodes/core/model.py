@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import yaml
 
-from .calibration import Calibration, pixel_grid
+from .calibration import Calibration
 from .patterns import PatternError, PatternSet
 from .reconstruct import CompositeDecoder, QualityLimits, depth_terms, drop_flying_pixels, full_scale
 
@@ -165,7 +165,7 @@ class PhaseOrderDecoder:
 
     def __init__(self, calibration: Calibration):
         cam = calibration.camera
-        u, v = pixel_grid(cam.shape)
+        u, v = cam.ideal_pixels()
         self.reference = np.broadcast_to(
             calibration.model.phase_at_depth(calibration.reference_depth_mm, u, v), cam.shape
         ).astype(np.float32)

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .calibration import Calibration, back_project, pixel_grid
+from .calibration import Calibration, back_project
 from .patterns import CODE_ORDERS, PatternSet
 from .phase import (
     TWO_PI,
@@ -136,7 +136,7 @@ def depth_terms(calibration: Calibration) -> list[np.ndarray]:
     """The rational model's per-pixel terms (ca, cb, da, db), float32 at the camera's size, so that
     depth = (ca + cb phi) / (da + db phi): computed once per calibration, not per image."""
     cam = calibration.camera
-    u, v = pixel_grid(cam.shape)
+    u, v = cam.ideal_pixels()
     return [
         np.ascontiguousarray(np.broadcast_to(t, cam.shape), np.float32) for t in calibration.model.linear_in_phase(u, v)
     ]
@@ -255,7 +255,7 @@ class CompositeDecoder:
         if calibration.code_model is None:
             raise PhaseError("the composite decoder needs a calibration made with the composite pattern (a code model)")
         cam = calibration.camera
-        u, v = pixel_grid(cam.shape)
+        u, v = cam.ideal_pixels()
         ends = [np.broadcast_to(calibration.model.phase_at_depth(z, u, v), cam.shape) for z in depth_range_mm]
         span = np.abs(ends[1] - ends[0]) / TWO_PI
         if span.max() > CODE_ORDERS - 1:
@@ -359,7 +359,7 @@ def composite_ftp_phases(image: np.ndarray, calibration: Calibration):
     """(carrier phase, code phase, carrier lobe amplitude) of a composite image by FTP, each lobe where
     the calibration puts it at the reference depth (the median phase slope, in cycles per image)."""
     cal = calibration
-    u, v = pixel_grid(cal.camera.shape)
+    u, v = cal.camera.ideal_pixels()
     carrier = cal.model.phase_at_depth(cal.reference_depth_mm, u, v) * np.ones(image.shape)
     code = carrier / CODE_ORDERS + cal.code_row_phase_at_depth(cal.reference_depth_mm, u, v)
     h, w = image.shape
@@ -389,7 +389,7 @@ def reconstruct_ftp(
     image = np.asarray(image)
     if image.shape != cal.camera.shape:
         raise PhaseError(f"expected one {cal.camera.width}x{cal.camera.height} image, got shape {image.shape}")
-    u, v = pixel_grid(cal.camera.shape)
+    u, v = cal.camera.ideal_pixels()
     if cal.code_model is not None:
         if decoder is None:
             raise PhaseError("the composite's FTP needs a CompositeDecoder for the working range its code spans")

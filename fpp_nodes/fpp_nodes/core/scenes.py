@@ -395,3 +395,49 @@ def make_scene(rig: Rig, kind: str, seed: int = 0, depth_mm: float | None = None
     if kind in SCENE_FAMILIES:  # depth_mm given: the background's depth at the image centre
         return SCENE_FAMILIES[kind](rig, rng, *([] if depth_mm is None else [(depth_mm, depth_mm)]))
     return scene_from_file(rig, kind)
+
+
+def board_scene(rig: Rig, board, rotation: np.ndarray, translation_mm: np.ndarray) -> Scene:
+    """A printed calibration board (core.board.Board) at a pose: board point b is at rotation @ b +
+    translation_mm in the camera's frame. Its print is averaged over 4 x 4 points in each pixel, as
+    sharp as a real print before the camera's blur."""
+    x, y = rig.camera().rays()
+    normal = rotation[:, 2]
+    offset = normal @ translation_mm
+    gradients = [np.gradient(a, axis=k) for a in (x, y) for k in (1, 0)]  # dx/du, dx/dv, dy/du, dy/dv
+    albedo = np.zeros(x.shape)
+    offsets = (np.arange(4) + 0.5) / 4 - 0.5  # 8 x 8 points moved the corners by under 0.01 px
+    for du in offsets:
+        for dv in offsets:
+            xs = x + du * gradients[0] + dv * gradients[1]
+            ys = y + du * gradients[2] + dv * gradients[3]
+            depth = offset / (normal[0] * xs + normal[1] * ys + normal[2])
+            b = (np.stack([xs * depth, ys * depth, depth], axis=-1) - translation_mm) @ rotation
+            albedo += board.albedo(b[..., 0], b[..., 1]) / offsets.size**2
+    depth = offset / (normal[0] * x + normal[1] * y + normal[2])
+    if not (depth > 0).all():
+        raise SimulationError("the board's plane passes behind the camera")
+    return Scene("board", depth, albedo)
+
+
+def board_poses(rig: Rig, board, count: int, rng: np.random.Generator, max_tilt_deg: float = 45.0) -> list:
+    """count (rotation, translation_mm) poses of the board, as a user holds one: the whole board in
+    view, its centre at 1100-1300 mm, tilted 10 deg to max_tilt_deg about a random axis in the image
+    plane and turned up to 15 deg in its own plane."""
+    cam, poses = rig.camera(), []
+    corners = np.array([[-2, -2, 0], [board.cols, -2, 0], [-2, board.rows, 0], [board.cols, board.rows, 0]])
+    corners = corners * board.square_mm - board.centre()
+    for _ in range(1000 * count):
+        if len(poses) == count:
+            return poses
+        angle = rng.uniform(0, 2 * np.pi)
+        axis = np.array([np.cos(angle), np.sin(angle), 0.0])
+        tilt = cv2.Rodrigues(axis * np.radians(rng.uniform(10.0, max_tilt_deg)))[0]
+        turn = cv2.Rodrigues(np.array([0.0, 0.0, np.radians(rng.uniform(-15.0, 15.0))]))[0]
+        rotation = tilt @ turn
+        z = rng.uniform(1100.0, 1300.0)
+        centre = np.array([*(rng.uniform(-0.25, 0.25, 2) * np.array([cam.width, cam.height]) / cam.fx * z), z])
+        u, v = cam.project(corners @ rotation.T + centre)
+        if (u > 5).all() and (u < cam.width - 6).all() and (v > 5).all() and (v < cam.height - 6).all():
+            poses.append((rotation, centre - rotation @ board.centre()))
+    raise SimulationError(f"a {board.cols}x{board.rows}:{board.square_mm:g} board does not fit the camera's view")

@@ -43,6 +43,7 @@ class Rig:
     noise_sigma: float = 1.0  # camera noise standard deviation, in camera counts
     blur_sigma_px: float = 0.5  # defocus, Gaussian standard deviation in camera pixels
     camera_bit_depth: int = 8
+    distortion: tuple = (0.0, 0.0, 0.0, 0.0, 0.0)  # the camera lens's k1, k2, p1, p2, k3 (OpenCV's model)
 
     def __post_init__(self):
         if self.width < 8 or self.height < 8:
@@ -65,7 +66,13 @@ class Rig:
 
     def camera(self) -> CameraIntrinsics:
         return CameraIntrinsics(
-            self.width, self.height, self.focal_px, self.focal_px, (self.width - 1) / 2.0, (self.height - 1) / 2.0
+            self.width,
+            self.height,
+            self.focal_px,
+            self.focal_px,
+            (self.width - 1) / 2.0,
+            (self.height - 1) / 2.0,
+            self.distortion,
         )
 
     def pattern_set(self, **kwargs) -> PatternSet:
@@ -99,7 +106,8 @@ class Rig:
         return focal * q[..., 0] / q[..., 2] + cx, focal * q[..., 1] / q[..., 2] + cy, q[..., 2]
 
     def true_model(self, patterns: PatternSet) -> RationalModel:
-        """The rational model this distortion-free rig obeys, derived from its geometry.
+        """The rational model this rig obeys, derived from its geometry, in the camera's ideal pixel
+        coordinates (CameraIntrinsics.ideal_pixels: exact with lens distortion too).
 
         A camera ray Z (x, y, 1) lands on projector coordinate
         s = f (Z a_r + t_r) / (Z a_3 + t_3) + c_r, and phase = k s with k = 2 pi f_max / L, so
@@ -202,8 +210,7 @@ def projector_shadow(
     shadow = np.zeros(depth.shape, bool)
     for s in np.arange(1, steps + 1) / max(steps, 1):
         q = points + (s * t_max)[..., None] * to_projector
-        uq = (cam.fx * q[..., 0] / q[..., 2] + cam.cx).astype(np.float32)
-        vq = (cam.fy * q[..., 1] / q[..., 2] + cam.cy).astype(np.float32)
+        uq, vq = (c.astype(np.float32) for c in cam.project(q))
         seen = cv2.remap(surface, uq, vq, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.inf)
         moved = reach_px * s >= 1.0  # samples within a pixel of the point see the point itself
         shadow |= moved & (q[..., 2] > seen + tolerance_mm)
@@ -251,7 +258,7 @@ class SceneRenderer:
         # border mixes in what a real lens would, not a mirror image of the fringes.
         m = int(np.ceil(4 * rig.blur_sigma_px))
         cam = rig.camera()
-        canvas = CameraIntrinsics(cam.width + 2 * m, cam.height + 2 * m, cam.fx, cam.fy, cam.cx + m, cam.cy + m)
+        canvas = replace(cam, width=cam.width + 2 * m, height=cam.height + 2 * m, cx=cam.cx + m, cy=cam.cy + m)
         depth = cv2.copyMakeBorder(depth, m, m, m, m, cv2.BORDER_REPLICATE)
         albedo = cv2.copyMakeBorder(np.asarray(scene.albedo, np.float64), m, m, m, m, cv2.BORDER_REPLICATE)
         x, y = canvas.rays()
@@ -311,3 +318,14 @@ def render(rig: Rig, scene: Scene, patterns: PatternSet, rng: np.random.Generato
     capture = renderer.truth(vertical)
     capture.images = np.stack([renderer.image(image, patterns.max_value, rng) for image in pattern_images(patterns)])
     return capture
+
+
+def render_pose(rig: Rig, scene: Scene, pattern_sets: list, rng: np.random.Generator | None = None):
+    """A calibration pose: the scene under full projector light, then its images under each pattern set."""
+    renderer = SceneRenderer(rig, scene)
+    white = np.full((1, rig.projector_width), 255, np.uint8)
+    stacks = []
+    for patterns in pattern_sets:
+        check_patterns(rig, patterns)
+        stacks.append(np.stack([renderer.image(image, patterns.max_value, rng) for image in pattern_images(patterns)]))
+    return renderer.image(white, 255, rng), stacks

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .calibration import Calibration, CalibrationError, CameraIntrinsics, fit_rational_model, pixel_grid
+from .calibration import Calibration, CalibrationError, CameraIntrinsics, fit_rational_model
 from .metrics import DepthErrors, depth_errors, noise_limited_depth_std
 from .patterns import CODE_ORDERS, PatternSet
 from .phase import TWO_PI, ftp_code_phase, unwrap_spatial
@@ -44,6 +44,7 @@ def calibrate_from_planes(
         raise CalibrationError(f"{len(stacks)} captures but {len(depths_mm)} depths")
     if len(set(depths_mm)) < 3:
         raise CalibrationError(f"need planes at three or more different depths, got {sorted(set(depths_mm))}")
+    ideal_u, ideal_v = (np.broadcast_to(c, camera.shape) for c in camera.ideal_pixels())  # the model's (u, v)
     samples, rows, code_samples = [], [], []
     for images, z in zip(stacks, depths_mm):
         images = np.asarray(images)
@@ -58,7 +59,8 @@ def calibrate_from_planes(
         if u.size < 100:
             raise CalibrationError(f"plane at {z} mm: only {u.size} usable pixels (no fringes visible?)")
         keep = slice(None, None, sample_step)
-        samples.append((u[keep], v[keep], phase[valid][keep], np.full(u[keep].size, float(z))))
+        u, v = ideal_u[v[keep], u[keep]], ideal_v[v[keep], u[keep]]
+        samples.append((u, v, phase[valid][keep], np.full(u.size, float(z))))
         if patterns.single_shot == "composite":
             row = code_row_phase(images[patterns.single_shot_index], phase, valid)
             if rows:  # the same 2 pi multiple on every plane: the row phase hardly moves with depth
@@ -72,7 +74,7 @@ def calibrate_from_planes(
     code_model = None
     if code_samples:
         keep = (slice(None, None, sample_step),) * 2
-        v, u = (np.tile(a[keep].ravel(), len(code_samples)) for a in np.indices(code_samples[0].shape))
+        u, v = (np.tile(a[keep].ravel(), len(code_samples)) for a in (ideal_u, ideal_v))
         chi = np.concatenate([c[keep].ravel() for c in code_samples])
         code_model = fit_rational_model(
             u, v, chi, np.repeat(np.asarray(depths_mm, float), chi.size // len(code_samples))
@@ -125,7 +127,7 @@ class SceneResult:
 
 def fringe_depth_mm(calibration: Calibration, phase: np.ndarray) -> np.ndarray:
     """Depth spanned by one fringe period of the highest frequency at every pixel."""
-    u, v = pixel_grid(phase.shape)
+    u, v = calibration.camera.ideal_pixels()
     return np.abs(calibration.model.depth_per_radian(phase, u, v)) * 2.0 * np.pi
 
 
@@ -136,7 +138,7 @@ def score(
     reconstruction with this modulation (metrics.noise_limited_depth_std, with the camera's rounding
     adding 1/12 count^2 of variance to noise_sigma^2)."""
     errors = depth_errors(rec.depth_mm, truth_depth, truth_valid, fringe_depth_mm(calibration, rec.phase))
-    u, v = pixel_grid(rec.phase.shape)
+    u, v = calibration.camera.ideal_pixels()
     mask = np.isfinite(rec.depth_mm) & truth_valid & (rec.modulation > 0)
     std = noise_limited_depth_std(
         rec.modulation[mask],

@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import yaml
@@ -53,6 +55,10 @@ def test_calibration_file_round_trips(calibration, tmp_path):
     np.testing.assert_array_equal(loaded.model.d, calibration.model.d)
     assert loaded.patterns == calibration.patterns and loaded.camera == calibration.camera
     assert yaml.safe_load(path.read_text())["version"] == 1
+    assert "distortion" not in yaml.safe_load(path.read_text())["camera"]  # files without a lens stay as they were
+    lens = replace(calibration, camera=replace(calibration.camera, distortion=(-0.9, 0.1, 1e-4, -2e-4, 0.0)))
+    lens.save(path)
+    assert Calibration.load(path).camera == lens.camera
 
 
 @pytest.mark.parametrize(
@@ -66,6 +72,7 @@ def test_calibration_file_round_trips(calibration, tmp_path):
         (lambda d: d["model"]["d"].__setitem__(3, "x"), "malformed"),
         (lambda d: d["patterns"].update(steps=2), "steps must be >= 3"),
         (lambda d: d["camera"].update(fx=-5), "focal lengths"),
+        (lambda d: d["camera"].update(distortion=[0.1, 0.2]), "distortion must be 5 finite numbers"),
     ],
 )
 def test_malformed_calibration_files_are_clear_errors(calibration, tmp_path, edit, message):

@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from fpp_nodes.core.calibration import Calibration, CalibrationError, pixel_grid
+from fpp_nodes.core.calibration import Calibration, CalibrationError
 from fpp_nodes.core.patterns import CODE_ORDERS
 from fpp_nodes.core.phase import PhaseError
 from fpp_nodes.core.reconstruct import CompositeDecoder
@@ -29,7 +29,7 @@ def as_network_output(carrier, code):
 def test_the_code_model_tells_the_row_phase_across_the_working_range(rig, patterns, calibration):
     """Fitted from noisy planes at 1100-1300 mm, it holds from 1000 to 1350 mm within 0.01 rad, a seventh
     of the code's margin (half the 0.137 rad between the closest two orders); measured 0.002 rad."""
-    u, v = pixel_grid((rig.height, rig.width))
+    u, v = rig.camera().ideal_pixels()
     fy = patterns.code_frequencies[1]
     for z in (SURFACE_DEPTH_MM[0], 1175.0, SURFACE_DEPTH_MM[1]):
         renderer = SceneRenderer(rig, plane_scene(rig, z))

@@ -4,14 +4,13 @@ that says NaN rather than guess."""
 import numpy as np
 import pytest
 
-from fpp_nodes.core.calibration import pixel_grid
 from fpp_nodes.core.model import PhaseOrderDecoder, order_confidence
 
 
 def ideal_outputs(rig, patterns, calibration, depth_mm, sigma_orders, amplitude=0.3):
     """What a perfect network says about a scene at depth_mm: exact fringe numerator/denominator, r off
     by 0.3 of its own sigma, log sigma."""
-    u, v = pixel_grid((rig.height, rig.width))
+    u, v = rig.camera().ideal_pixels()
     phase = calibration.model.phase_at_depth(depth_mm, u, v) * np.ones((rig.height, rig.width))
     reference = calibration.model.phase_at_depth(calibration.reference_depth_mm, u, v)
     orders = (phase - reference) / (2 * np.pi) + 0.3 * sigma_orders

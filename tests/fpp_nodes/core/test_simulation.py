@@ -1,7 +1,10 @@
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
 
+from fpp_nodes.core.calibration import back_project
 from fpp_nodes.core.phase import wrapped_phase
 from fpp_nodes.core.scenes import make_scene, plane_scene, scene_from_file
 from fpp_nodes.core.simulation import Rig, SimulationError, render
@@ -90,3 +93,43 @@ def test_bad_scene_files_are_clear_errors(rig, tmp_path):
         scene_from_file(rig, tmp_path / "nan.npy")
     with pytest.raises(SimulationError, match="projector is"):
         render(rig, plane_scene(rig, 1200), Rig(projector_width=640).pattern_set())
+
+
+def test_a_distorted_camera_sees_a_plane_where_the_lens_model_puts_it(ideal_rig):
+    """Lens distortion, against closed forms: each pixel's ray projects back onto that pixel through
+    OpenCV's model, a fronto-parallel plane back-projects flat, and the phase each pixel shows is the
+    projector's at the point its (bent) ray meets the plane."""
+    lens = (-0.9, 0.5, 3e-4, -2e-4, 0.0)
+    rig = replace(ideal_rig, distortion=lens)
+    cam = rig.camera()
+    x, y = cam.rays()
+    u, v = cam.project(np.stack([x, y, np.ones_like(x)], axis=-1))
+    columns, rows = np.meshgrid(np.arange(rig.width), np.arange(rig.height))
+    assert np.abs(u - columns).max() < 1e-9 and np.abs(v - rows).max() < 1e-9
+    corner = cv2.projectPoints(
+        np.array([[x[0, 0], y[0, 0], 1.0]]), np.zeros(3), np.zeros(3), cam.matrix(), np.array(lens)
+    )
+    assert np.abs(corner[0].ravel() - (0.0, 0.0)).max() < 1e-9  # the same model as OpenCV's
+    ideal_u, ideal_v = cam.ideal_pixels()
+    assert np.hypot(ideal_u[0, 0], ideal_v[0, 0]) > 1.5  # the corner pixel's ray is bent by over a pixel
+    xyz = back_project(np.full(cam.shape, 1200.0), cam)
+    assert np.abs(xyz[..., 2] - 1200).max() < 1e-3
+    patterns = rig.pattern_set(bit_depth=16)
+    capture = render(rig, plane_scene(rig, 1200.0), patterns)
+    xp, _, _ = rig.to_projector(np.stack([x * 1200.0, y * 1200.0, np.full(x.shape, 1200.0)], axis=-1))
+    expected = 2 * np.pi * patterns.frequencies[-1] * xp / rig.projector_width
+    measured = wrapped_phase(capture.images[patterns.top_frequency_frames].astype(np.float64))
+    assert np.abs(np.angle(np.exp(1j * (measured - expected)))).max() < 2e-3
+
+
+def test_horizontal_fringes_tell_the_projector_row(ideal_rig):
+    """The board calibration's second fringe set: its unwrapped phase is 2 pi f_max y_p / H."""
+    from fpp_nodes.core.board import horizontal_patterns
+    from fpp_nodes.core.reconstruct import multi_frequency_phase
+
+    patterns = horizontal_patterns(ideal_rig.pattern_set(bit_depth=16))
+    capture = render(ideal_rig, plane_scene(ideal_rig, 1180.0, tilt_x_deg=15.0), patterns)
+    phase, valid, _, _ = multi_frequency_phase(capture.images, patterns)
+    row = phase * ideal_rig.projector_height / (2 * np.pi * patterns.frequencies[-1])
+    # 0.02 projector px: the projector's pixels, linear between centres, bend an 8-px period's sinusoid
+    assert valid.mean() > 0.99 and np.abs(row - capture.projector_coord)[valid].max() < 0.02
