@@ -113,6 +113,7 @@ class BoardReport:
     projector: CameraIntrinsics
     rotation: np.ndarray
     translation_mm: np.ndarray
+    model_fit_mm: float  # RMS depth difference of the rational model from exact triangulation, over the virtual planes
 
 
 def horizontal_patterns(patterns: PatternSet) -> PatternSet:
@@ -253,16 +254,17 @@ def calibrate_from_board(
         depth = float((cv2.Rodrigues(rvecs[i])[0] @ board.centre() + tvecs[i].ravel())[2])
         reports.append(PoseReport(pose.name, depth, _rms(cam_err), _rms(proj - projector_points[i]), len(objects[i])))
     depths = [r.depth_mm for r in reports]
-    model, code_model = model_from_geometry(
+    model, code_model, fit_mm = model_from_geometry(
         camera, patterns, rotation, translation, k_proj, d_proj, (min(depths), max(depths))
     )
     reference = float(np.median(depths)) if reference_depth_mm is None else float(reference_depth_mm)
-    report = BoardReport(reports, _intrinsics(k_proj, d_proj, projector_size), rotation, translation.ravel())
+    report = BoardReport(reports, _intrinsics(k_proj, d_proj, projector_size), rotation, translation.ravel(), fit_mm)
     return Calibration(camera, model, patterns, reference, code_model), report
 
 
 def model_from_geometry(camera, patterns, rotation, translation, k_proj, d_proj, depth_range_mm, step: int = 4):
-    """The rational phase-to-depth model (and, with the composite pattern, its code model) fitted to
+    """The rational phase-to-depth model (and, with the composite pattern, its code model, and the
+    model's RMS depth difference from exact triangulation over the samples) fitted to
     virtual planes square to the camera across depth_range_mm widened by DEPTH_MARGIN_MM: each
     sampled pixel's ray meets each plane, the projector (rotation, translation from the camera's
     frame; intrinsics, distortion) sees the meeting point at (xp, yp), the carrier's phase there is
@@ -283,4 +285,5 @@ def model_from_geometry(camera, patterns, rotation, translation, k_proj, d_proj,
     u, v, phase, chi, depth = (np.concatenate(parts) for parts in zip(*samples))
     model = fit_rational_model(u, v, phase, depth)
     code_model = fit_rational_model(u, v, chi, depth) if patterns.single_shot == "composite" else None
-    return model, code_model
+    fit_mm = float(np.sqrt(np.mean((model.depth(phase, u, v) - depth) ** 2)))
+    return model, code_model, fit_mm

@@ -56,6 +56,7 @@ def test_board_calibration_recovers_the_rig(lens_rig, board_calibration):
     cam = calibration.camera
     assert abs(cam.fx / lens_rig.focal_px - 1) < 1e-3 and abs(cam.distortion[0] - LENS[0]) < 0.1
     assert abs(np.linalg.norm(report.translation_mm) - lens_rig.baseline_mm) < 1.0
+    assert report.model_fit_mm < 0.01  # the rational model vs exact triangulation through that geometry
 
 
 def test_board_calibration_measures_scenes_it_never_saw(lens_rig, board_calibration):
