@@ -29,6 +29,8 @@ MIN_TILT_SPREAD_DEG = 5.0  # poses whose boards all face the same way leave the 
 CORNER_WINDOW_PX = 20  # half-width of the pixel window around a corner that the local homography fits
 MAX_PHASE_NOISE_RAD = 0.05  # pixels the homography uses (as the plane calibration's)
 VIRTUAL_PLANES = 7
+CORNER_REFINEMENTS = 2  # rounds of square_on_corners and recalibration
+SQUARE_ON_PX = 40  # a square's side in the square-on view of the board
 # Lens models the fit may use (OpenCV flags): radial k1 alone is the default, because a narrow field
 # (the default rig sees 7 degrees) cannot tell more terms from the focal length and principal point:
 # measured on the simulated rig, k1 alone 0.054 mm and a plane flat to 1.0x its noise, k1 and k2 0.059
@@ -134,6 +136,28 @@ def find_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
     return cv2.cornerSubPix(grey, corners, (7, 7), (-1, -1), criteria).reshape(-1, 2)
 
 
+def square_on_corners(image, board: Board, k: np.ndarray, d: np.ndarray, rvec, tvec) -> np.ndarray:
+    """The corners found again on the board seen square-on (after Datta, Kim and Kanade 2009): the
+    image resampled onto the board's plane through the current calibration, where neither the lens
+    nor the perspective bends the checker, the corners refined there and carried back into the image.
+    On a tilted board cornerSubPix's corners are biased, and the focal length with them."""
+    scale = SQUARE_ON_PX / board.square_mm  # pixels per mm of the square-on view
+    s = board.square_mm
+    bx, by = np.meshgrid(
+        np.arange(int((board.cols + 1) * s * scale)) / scale - s,
+        np.arange(int((board.rows + 1) * s * scale)) / scale - s,
+    )
+    points = np.stack([bx.ravel(), by.ravel(), np.zeros(bx.size)], axis=-1)
+    uv = cv2.projectPoints(points, rvec, tvec, k, d)[0].reshape(*bx.shape, 2).astype(np.float32)
+    square_on = cv2.remap(np.asarray(image, np.float32), uv[..., 0], uv[..., 1], cv2.INTER_LINEAR)
+    start = ((board.object_points()[:, :2] + s) * scale).reshape(-1, 1, 2).astype(np.float32)
+    window = int(0.3 * SQUARE_ON_PX)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
+    refined = cv2.cornerSubPix(square_on, start, (window, window), (-1, -1), criteria).reshape(-1, 2) / scale - s
+    on_board = np.c_[refined, np.zeros(len(refined))]
+    return cv2.projectPoints(on_board, rvec, tvec, k, d)[0].reshape(-1, 2).astype(np.float32)
+
+
 def projector_coordinates(pose: BoardPose, patterns: PatternSet) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every pixel's projector column and row (from the vertical and horizontal fringes' unwrapped
     phases: phase = 2 pi f_max s / L) and where both are trustworthy."""
@@ -201,7 +225,7 @@ def calibrate_from_board(
             "(15 tilted by up to 45 deg work well)"
         )
     shape = np.asarray(poses[0].image).shape
-    objects, camera_points, projector_points = [], [], []
+    found, maps = [], []
     for pose in poses:
         if np.asarray(pose.image).shape != shape:
             raise CalibrationError(f"pose {pose.name}: its image is {pose.image.shape}, the first pose's {shape}")
@@ -210,7 +234,25 @@ def calibrate_from_board(
             raise CalibrationError(
                 f"pose {pose.name}: the board ({board.cols}x{board.rows} inner corners) is not found in its image"
             )
-        projected = corners_in_projector(corners, *projector_coordinates(pose, patterns))
+        found.append(corners)
+        maps.append(projector_coordinates(pose, patterns))
+    flags = LENS_MODELS[lens]
+    size = (shape[1], shape[0])
+    everything = [board.object_points()] * len(poses)
+    _, k_cam, d_cam, rvecs, tvecs = cv2.calibrateCamera(everything, found, size, None, None, flags=flags)
+    normals = np.array([cv2.Rodrigues(r)[0][:, 2] for r in rvecs])
+    spread = np.degrees(np.arccos(np.clip(np.min(normals @ normals.T), -1, 1)))
+    if spread < MIN_TILT_SPREAD_DEG:
+        raise CalibrationError(
+            f"the {len(poses)} poses' boards face the same way (within {spread:.1f} deg): they do not tell the "
+            f"focal length; tilt the board 20-45 deg in different directions"
+        )
+    for _ in range(CORNER_REFINEMENTS):
+        found = [square_on_corners(p.image, board, k_cam, d_cam, r, t) for p, r, t in zip(poses, rvecs, tvecs)]
+        _, k_cam, d_cam, rvecs, tvecs = cv2.calibrateCamera(everything, found, size, k_cam, d_cam, flags=flags)
+    objects, camera_points, projector_points = [], [], []
+    for pose, corners, pose_maps in zip(poses, found, maps):
+        projected = corners_in_projector(corners, *pose_maps)
         seen = np.isfinite(projected).all(axis=-1)
         if seen.sum() < 0.5 * len(corners):
             raise CalibrationError(
@@ -220,16 +262,6 @@ def calibrate_from_board(
         objects.append(board.object_points()[seen])
         camera_points.append(corners[seen].astype(np.float32))
         projector_points.append(projected[seen].astype(np.float32))
-    flags = LENS_MODELS[lens]
-    size = (shape[1], shape[0])
-    _, k_cam, d_cam, rvecs, tvecs = cv2.calibrateCamera(objects, camera_points, size, None, None, flags=flags)
-    normals = np.array([cv2.Rodrigues(r)[0][:, 2] for r in rvecs])
-    spread = np.degrees(np.arccos(np.clip(np.min(normals @ normals.T), -1, 1)))
-    if spread < MIN_TILT_SPREAD_DEG:
-        raise CalibrationError(
-            f"the {len(poses)} poses' boards face the same way (within {spread:.1f} deg): they do not tell the "
-            f"focal length; tilt the board 20-45 deg in different directions"
-        )
     projector_size = (patterns.width, patterns.height)
     _, k_proj, d_proj, *_ = cv2.calibrateCamera(objects, projector_points, projector_size, None, None, flags=flags)
     _, k_cam, d_cam, k_proj, d_proj, rotation, translation, *_ = cv2.stereoCalibrate(

@@ -4,10 +4,18 @@ plane across the whole field measured flat, and the errors a user meets."""
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 
-from fpp_nodes.core.board import Board, BoardPose, calibrate_from_board, find_corners, horizontal_patterns
+from fpp_nodes.core.board import (
+    Board,
+    BoardPose,
+    calibrate_from_board,
+    find_corners,
+    horizontal_patterns,
+    square_on_corners,
+)
 from fpp_nodes.core.calibration import CalibrationError, back_project
 from fpp_nodes.core.metrics import depth_errors
 from fpp_nodes.core.reconstruct import PspReconstructor
@@ -42,11 +50,18 @@ def board_calibration(lens_rig):
 def test_the_rendered_board_puts_its_corners_where_the_distorted_camera_projects_them(lens_rig):
     """The simulator's geometry against the closed form: OpenCV finds the printed corners within a
     few hundredths of a pixel of their projection through the lens model."""
-    rng = np.random.default_rng(3)
+    rng, cam = np.random.default_rng(3), lens_rig.camera()
+    errors = []
     for rotation, translation in board_poses(lens_rig, BOARD, 3, rng):
-        corners = find_corners(pose(lens_rig, rotation, translation, rng).image, BOARD)
-        u, v = lens_rig.camera().project(BOARD.object_points() @ rotation.T + translation)
-        assert np.sqrt(np.mean((corners[:, 0] - u) ** 2 + (corners[:, 1] - v) ** 2)) < 0.06
+        image = pose(lens_rig, rotation, translation, rng).image
+        truth = np.stack(cam.project(BOARD.object_points() @ rotation.T + translation), axis=-1)
+        lens, rvec = np.array(cam.distortion), cv2.Rodrigues(rotation)[0]
+        square_on = square_on_corners(image, BOARD, cam.matrix(), lens, rvec, translation.reshape(3, 1))
+        errors.append(
+            [np.sqrt(np.mean(np.sum((c - truth) ** 2, axis=-1))) for c in (find_corners(image, BOARD), square_on)]
+        )
+    found, refined = np.mean(errors, axis=0)
+    assert found < 0.06 and refined < 0.8 * found  # seen square-on, the corners are not bent by tilt and lens
 
 
 def test_board_calibration_recovers_the_rig(lens_rig, board_calibration):
@@ -60,18 +75,19 @@ def test_board_calibration_recovers_the_rig(lens_rig, board_calibration):
 
 
 def test_board_calibration_measures_scenes_it_never_saw(lens_rig, board_calibration):
-    """No fringe-order errors, and within 0.1 mm RMS (the plane calibration with a stage and known
-    intrinsics: 0.025 mm; the board's depth scale rests on its focal length, docs/real-rig.md)."""
+    """No fringe-order errors, and the depth scale right to 0.05% (0.6 mm at 1.2 m): the board's depth
+    scale rests on its focal length, which 15 poses tell to 0.01-0.07% (docs/real-rig.md); the plane
+    calibration with a stage and known intrinsics is right to 0.025 mm RMS."""
     calibration, _ = board_calibration
     planes, _ = simulated_calibration(lens_rig, lens_rig.pattern_set(), seed=7)
     for kind, seed in (("objects", 21), ("sculpture", 22)):
         capture = render(
             lens_rig, make_scene(lens_rig, kind, seed), lens_rig.pattern_set(), np.random.default_rng(seed)
         )
-        for c, limit in ((calibration, 0.1), (planes, 0.035)):
+        for c, rmse_mm, mre in ((calibration, 0.6, 5e-4), (planes, 0.035, 3e-5)):
             rec = PspReconstructor(c)(capture.images)
             e = depth_errors(rec.depth_mm, capture.depth_mm, capture.valid, fringe_depth_mm(c, rec.phase))
-            assert e.order_errors == 0 and e.coverage > 0.95 and e.rmse_mm < limit, (kind, e)
+            assert e.order_errors == 0 and e.coverage > 0.95 and e.rmse_mm < rmse_mm and e.mre < mre, (kind, e)
 
 
 def test_a_plane_across_the_field_is_flat_not_a_bowl(lens_rig, board_calibration):
