@@ -32,6 +32,11 @@ class FringeCameraSim(Node):
             projector_width=declare(self, "projector_width", defaults.projector_width, "pixels", True),
             projector_height=declare(self, "projector_height", defaults.projector_height, "pixels", True),
             projector_gamma=declare(self, "projector_gamma", defaults.projector_gamma, "", True),
+            distortion=tuple(
+                declare(
+                    self, "distortion", list(defaults.distortion), "camera lens k1, k2, p1, p2, k3 (OpenCV's)", True
+                )
+            ),
         )
         scene = declare(self, "scene", "sculpture", f"one of {', '.join(SCENE_KINDS)}, or a height map file (mm)", True)
         seed = declare(self, "seed", 0, "scene and noise seed", True)
