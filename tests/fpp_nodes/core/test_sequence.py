@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from fpp_nodes.core.sequence import SequenceAssembler
+from fpp_nodes.core.patterns import PatternSet, pattern_images
+from fpp_nodes.core.sequence import SequenceAssembler, ShownPatterns
 
 
 def frame(i):
@@ -66,3 +67,17 @@ def test_joining_mid_sequence_waits_for_the_start():
     a = SequenceAssembler(4)
     done, reasons = feed(a, [2, 3, 0, 1, 2, 3])
     assert len(done) == 1 and not reasons and a.stats.frames_discarded == 2
+
+
+def test_frames_are_matched_to_the_pattern_shown_nearest_their_stamp():
+    """ShownPatterns, as capture_sequence and the bag data set use it: a pattern image is known by its
+    bytes, a frame takes the pattern shown nearest its stamp within the offset, and a frame waits until
+    a later pattern shows none can match it."""
+    patterns = PatternSet(width=256, height=8)
+    images = pattern_images(patterns)
+    shown = ShownPatterns(patterns, max_offset_ns=5)
+    assert shown.add(100, images[3]) == 3 and shown.add(200, images[4]) == 4
+    assert shown.add(300, np.zeros_like(images[0])) is None and len(shown.events) == 2  # not in the set
+    assert shown.match(103) == 3 and shown.match(196) == 4 and shown.match(150) is None
+    assert not shown.none_will_match(210)  # its pattern may still arrive
+    assert shown.none_will_match(150)  # the pattern at 200 came after 150's window closed
