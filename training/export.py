@@ -40,46 +40,38 @@ def sha256(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-SILENT_ERROR_BUDGET = 0.005  # the share of output pixels off by > 1 mm a threshold may leave, on validation
-CONFIDENCE_GRID = (0.0, 0.25, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999, 0.9999)
+SILENT_ERROR_BUDGET = 0.005  # the share of output pixels off by > 1 mm the rules may leave, on validation
+CONFIDENCE_GRID = (0.0, 0.25, 0.5, 0.6, 0.7, 0.8, 0.9, 0.92, 0.95, 0.98, 0.99, 0.995, 0.999, 0.9999)
+FLOOR_GRID = (0.01, 0.02, 0.03, 0.05)  # the fringe mask's floor: the network's modulation, of full scale
 OUTPUTS = {"phase": "fringe_order", "composite": "fringe_phases"}  # other architectures: depth_mm
 
 
 @torch.no_grad()
-def choose_min_confidence(model, data: str, decoder, limit: int = 60) -> dict:
-    """The lowest order confidence (most coverage) whose silent errors (output pixels off the exact
-    depth by more than 1 mm) stay within SILENT_ERROR_BUDGET on the validation split: chosen on
-    validation data, never on the test set."""
-    # per threshold, with and without the edge rule: output pixels, silent errors, exact pixels
-    counts = {(c, edge): np.zeros(3) for c in CONFIDENCE_GRID for edge in (True, False)}
+def choose_decoding(model, data: str, decoder, limit: int = 60) -> dict:
+    """The fringe mask's floor and the order-confidence threshold that give the most coverage while
+    the silent errors (output pixels off the exact depth by more than 1 mm) stay within
+    SILENT_ERROR_BUDGET on the validation split: chosen on validation data, never on the test set."""
+    counts = {(m, c): np.zeros(3) for m in FLOOR_GRID for c in CONFIDENCE_GRID}  # output, silent, exact
     for f in split_files(data, "val")[:limit]:
         image, _, truth = load_sample(f)
         out = predict(model, torch.from_numpy(network_input(image))[None, None])[0].numpy()
-        fringes = fringe_mask(image, modulation=np.hypot(out[0], out[1]))  # as DepthModel.infer
-        for c in CONFIDENCE_GRID:
-            depth = decoder(out, c, fringes)[0]
-            for edge in (True, False):
-                shown = (
-                    trusted_single_shot(depth.copy(), image, fringes=fringes)
-                    if edge
-                    else np.where(fringes, depth, np.nan)
-                )
+        for m in FLOOR_GRID:
+            fringes = fringe_mask(image, m, modulation=np.hypot(out[0], out[1]))  # as DepthModel.infer
+            for c in CONFIDENCE_GRID:
+                shown = trusted_single_shot(decoder(out, c, fringes)[0], image, fringes=fringes)
                 ok = np.isfinite(shown) & np.isfinite(truth)
-                counts[c, edge] += (ok.sum(), (np.abs(shown[ok] - truth[ok]) > 1.0).sum(), np.isfinite(truth).sum())
+                counts[m, c] += (ok.sum(), (np.abs(shown[ok] - truth[ok]) > 1.0).sum(), np.isfinite(truth).sum())
     rows = {key: {"coverage": n[0] / max(n[2], 1), "silent_errors": n[1] / max(n[0], 1)} for key, n in counts.items()}
-    good = [
-        c
-        for c in CONFIDENCE_GRID
-        if rows[c, True]["silent_errors"] <= SILENT_ERROR_BUDGET and rows[c, True]["coverage"] > 0
-    ]
-    chosen = good[0] if good else CONFIDENCE_GRID[-1]
+    good = [k for k, r in rows.items() if r["silent_errors"] <= SILENT_ERROR_BUDGET and r["coverage"] > 0]
+    floor, confidence = max(good, key=lambda k: (rows[k]["coverage"], k[1])) if good else (0.05, CONFIDENCE_GRID[-1])
     return {
-        "min_confidence": chosen,
+        "min_confidence": confidence,
+        "min_modulation": floor,
         "chosen_on": f"{data} val",
         "silent_error_budget": SILENT_ERROR_BUDGET,
-        "validation": {str(c): {k: round(float(v), 5) for k, v in rows[c, True].items()} for c in CONFIDENCE_GRID},
-        "validation_without_edge_rule": {
-            str(c): {k: round(float(v), 5) for k, v in rows[c, False].items()} for c in CONFIDENCE_GRID
+        "validation": {
+            f"floor {m}": {str(c): {k: round(float(v), 5) for k, v in rows[m, c].items()} for c in CONFIDENCE_GRID}
+            for m in FLOOR_GRID
         },
     }
 
@@ -173,7 +165,7 @@ def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | No
             card["decoding"] = {"depth_range_mm": list(SURFACE_DEPTH_MM)}
         else:
             decoder, card["decoding"] = PhaseOrderDecoder(Calibration.from_dict(calibration)), {}
-        card["decoding"].update(choose_min_confidence(model, cfg.data, decoder))
+        card["decoding"].update(choose_decoding(model, cfg.data, decoder))
     out.with_suffix(".yaml").write_text(yaml.safe_dump(card, sort_keys=False))
     return card
 

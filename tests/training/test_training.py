@@ -290,6 +290,10 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     assert card["decoding"]["depth_range_mm"] == [1000.0, 1350.0] and "val" in card["decoding"]["chosen_on"]
     model = DepthModel(tmp_path / "m.onnx", threads=1)
     assert model.reads == "composite"
+    # both rules chosen together on validation, and the one the model runs with
+    assert model.min_modulation == card["decoding"]["min_modulation"] in (0.01, 0.02, 0.03, 0.05)
+    chosen = card["decoding"]["validation"][f"floor {model.min_modulation}"][str(model.min_confidence)]
+    assert chosen["silent_errors"] <= 0.005 or model.min_confidence == 0.9999
     depth, confidence = model.infer(load_sample(split_files(data, "test")[0])[0])
     sure = confidence[np.isfinite(confidence)]
     assert sure.size and sure.min() >= 0 and sure.max() <= 1

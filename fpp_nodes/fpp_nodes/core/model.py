@@ -86,6 +86,8 @@ class DepthModel:
             try:
                 calibration = Calibration.from_dict(self.card["calibration"])
                 self.min_confidence = float(self.card["decoding"]["min_confidence"])
+                # the fringe mask's floor, chosen with the threshold on validation (cards before it: 5%)
+                self.min_modulation = float(self.card["decoding"].get("min_modulation", MIN_MODULATION))
                 self.decoder = (
                     PhaseOrderDecoder(calibration)
                     if self.output == "fringe_order"
@@ -134,7 +136,7 @@ class DepthModel:
         x = cv2.copyMakeBorder(x, 0, (-h) % STRIDE, 0, (-w) % STRIDE, cv2.BORDER_REPLICATE)
         out = self.session.run([self.output], {"image": x[None, None]})[0][0, :, :h, :w]
         if self.decoder is not None:
-            fringes = fringe_mask(image, modulation=np.hypot(out[0], out[1]))
+            fringes = fringe_mask(image, self.min_modulation, modulation=np.hypot(out[0], out[1]))
             depth, confidence = self.decoder(out, self.min_confidence, fringes)
             return trusted_single_shot(depth, image, fringes=fringes), confidence
         depth = cv2.resize(out[0], self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else out[0]
