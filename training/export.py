@@ -26,7 +26,7 @@ import yaml
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.model import PhaseOrderDecoder, fringe_mask, network_input, trusted_single_shot
 from fpp_nodes.core.patterns import PatternSet
-from fpp_nodes.core.reconstruct import CompositeDecoder
+from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits
 from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
 
 from .dataset import load_sample, split_files
@@ -46,22 +46,40 @@ FLOOR_GRID = (0.01, 0.02, 0.03, 0.05)  # the fringe mask's floor: the network's 
 OUTPUTS = {"phase": "fringe_order", "composite": "fringe_phases"}  # other architectures: depth_mm
 
 
+def rule_counts(samples, decoder, floors, confidences, steps_mm=(QualityLimits.max_depth_step_mm,)) -> dict:
+    """(floor, confidence, step) -> [output pixels, silent errors (off the exact depth by > 1 mm), exact
+    pixels] over samples of (image, exact depth, network outputs), decoded as DepthModel.infer does with
+    that fringe-mask floor, order-confidence threshold and edge-rule step."""
+    counts = {}
+    for image, truth, out in samples:
+        for m in floors:
+            fringes = fringe_mask(image, m, modulation=np.hypot(out[0], out[1]))
+            for c in confidences:
+                depth = decoder(out, c, fringes)[0]
+                for s in steps_mm:
+                    shown = trusted_single_shot(depth.copy(), image, max_depth_step_mm=s, fringes=fringes)
+                    ok = np.isfinite(shown) & np.isfinite(truth)
+                    silent = np.count_nonzero(np.abs(shown[ok] - truth[ok]) > 1.0)
+                    counts.setdefault((m, c, s), np.zeros(3))[:] += (ok.sum(), silent, np.isfinite(truth).sum())
+    return counts
+
+
 @torch.no_grad()
 def choose_decoding(model, data: str, decoder, limit: int = 60) -> dict:
     """The fringe mask's floor and the order-confidence threshold that give the most coverage while
     the silent errors (output pixels off the exact depth by more than 1 mm) stay within
     SILENT_ERROR_BUDGET on the validation split: chosen on validation data, never on the test set."""
-    counts = {(m, c): np.zeros(3) for m in FLOOR_GRID for c in CONFIDENCE_GRID}  # output, silent, exact
-    for f in split_files(data, "val")[:limit]:
-        image, _, truth = load_sample(f)
-        out = predict(model, torch.from_numpy(network_input(image))[None, None])[0].numpy()
-        for m in FLOOR_GRID:
-            fringes = fringe_mask(image, m, modulation=np.hypot(out[0], out[1]))  # as DepthModel.infer
-            for c in CONFIDENCE_GRID:
-                shown = trusted_single_shot(decoder(out, c, fringes)[0], image, fringes=fringes)
-                ok = np.isfinite(shown) & np.isfinite(truth)
-                counts[m, c] += (ok.sum(), (np.abs(shown[ok] - truth[ok]) > 1.0).sum(), np.isfinite(truth).sum())
-    rows = {key: {"coverage": n[0] / max(n[2], 1), "silent_errors": n[1] / max(n[0], 1)} for key, n in counts.items()}
+
+    def samples():
+        for f in split_files(data, "val")[:limit]:
+            image, _, truth = load_sample(f)
+            yield image, truth, predict(model, torch.from_numpy(network_input(image))[None, None])[0].numpy()
+
+    counts = rule_counts(samples(), decoder, FLOOR_GRID, CONFIDENCE_GRID)
+    rows = {
+        (m, c): {"coverage": n[0] / max(n[2], 1), "silent_errors": n[1] / max(n[0], 1)}
+        for (m, c, _), n in counts.items()
+    }
     good = [k for k, r in rows.items() if r["silent_errors"] <= SILENT_ERROR_BUDGET and r["coverage"] > 0]
     floor, confidence = max(good, key=lambda k: (rows[k]["coverage"], k[1])) if good else (0.05, CONFIDENCE_GRID[-1])
     return {

@@ -14,21 +14,13 @@ from __future__ import annotations
 
 import argparse
 
-import cv2
 import numpy as np
 
-from fpp_nodes.core.model import (
-    MIN_MODULATION,
-    STRIDE,
-    DepthModel,
-    default_model_path,
-    fringe_mask,
-    network_input,
-    trusted_single_shot,
-)
+from fpp_nodes.core.model import MIN_MODULATION, DepthModel, default_model_path
 from fpp_nodes.core.reconstruct import QualityLimits
 
 from .dataset import load_sample, split_files
+from .export import rule_counts
 
 CONFIDENCES = (0.5, 0.7, 0.8, 0.9, 0.92, 0.94, 0.95, 0.98)
 STEPS_MM = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, np.inf)
@@ -45,24 +37,13 @@ def main():
     parser.add_argument("--data", default="data/fpp/composite")
     args = parser.parse_args()
     model = DepthModel(default_model_path())
-    counts = {}  # (floor, confidence, step) -> output, silent, exact pixels
     files = split_files(args.data, "val")
+    outputs = []  # (image, exact depth, network outputs), run once
     for f in files:
         image, _, truth = load_sample(f)
-        x = network_input(image)
-        h, w = x.shape
-        padded = cv2.copyMakeBorder(x, 0, (-h) % STRIDE, 0, (-w) % STRIDE, cv2.BORDER_REPLICATE)
-        out = model.session.run([model.output], {"image": padded[None, None]})[0][0, :, :h, :w]
-        for floor in FLOORS:  # as DepthModel.infer, at each floor
-            fringes = fringe_mask(image, min_modulation=floor, modulation=np.hypot(out[0], out[1]))
-            for c in CONFIDENCES:
-                depth = model.decoder(out, c, fringes)[0]
-                for s in STEPS_MM if floor == MIN_MODULATION else (STEP,):
-                    shown = trusted_single_shot(depth.copy(), image, max_depth_step_mm=s, fringes=fringes)
-                    ok = np.isfinite(shown) & np.isfinite(truth)
-                    silent = np.count_nonzero(np.abs(shown[ok] - truth[ok]) > 1.0)
-                    cell = counts.setdefault((floor, c, s), np.zeros(3))
-                    cell += (ok.sum(), silent, np.isfinite(truth).sum())
+        outputs.append((image, truth, model.outputs(image)))
+    counts = rule_counts(outputs, model.decoder, (MIN_MODULATION,), CONFIDENCES, STEPS_MM)
+    counts.update(rule_counts(outputs, model.decoder, FLOORS, CONFIDENCES))
     print(f"{args.data} validation split, {len(files)} scenes; each cell: coverage, silent errors")
     table("edge rule step", [(f"step {s:g} mm", (MIN_MODULATION, s)) for s in STEPS_MM], counts)
     table("fringe mask floor", [(f"floor {m:g}", (m, STEP)) for m in FLOORS], counts)

@@ -124,17 +124,21 @@ class DepthModel:
         (see trusted_single_shot)."""
         return self.infer(image)[0]
 
-    def infer(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """(depth mm, confidence) of one fringe image. A phase-aware model's confidence is the
-        probability that each pixel's fringe order is right (NaN depth below its threshold; NaN itself
-        where the image shows no usable fringes); a depth-regressing model has none."""
+    def outputs(self, image: np.ndarray) -> np.ndarray:
+        """The network's raw output channels for one fringe image, at its input's resolution."""
         self.check(image)
         x = network_input(image)
         w, h = self.size[0] // self.downsample, self.size[1] // self.downsample
         if self.downsample > 1:
             x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA)
         x = cv2.copyMakeBorder(x, 0, (-h) % STRIDE, 0, (-w) % STRIDE, cv2.BORDER_REPLICATE)
-        out = self.session.run([self.output], {"image": x[None, None]})[0][0, :, :h, :w]
+        return self.session.run([self.output], {"image": x[None, None]})[0][0, :, :h, :w]
+
+    def infer(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(depth mm, confidence) of one fringe image. A phase-aware model's confidence is the
+        probability that each pixel's fringe order is right (NaN depth below its threshold; NaN itself
+        where the image shows no usable fringes); a depth-regressing model has none."""
+        out = self.outputs(image)
         if self.decoder is not None:
             fringes = fringe_mask(image, self.min_modulation, modulation=np.hypot(out[0], out[1]))
             depth, confidence = self.decoder(out, self.min_confidence, fringes)
