@@ -43,13 +43,18 @@ def _rig(args) -> Rig:
     return Rig(noise_sigma=args.noise, blur_sigma_px=args.blur, distortion=args.distortion)
 
 
+def _write_sensor(folder: Path, rig: Rig, patterns: PatternSet) -> None:
+    """sensor.yaml: the camera and the pattern set, as fpp calibrate's --sensor reads them."""
+    (folder / "sensor.yaml").write_text(
+        yaml.safe_dump({"camera": rig.camera().to_dict(), "patterns": patterns.to_dict()}, sort_keys=False)
+    )
+
+
 def _write_capture(folder: Path, capture, rig: Rig, patterns: PatternSet, scene_name: str, seed: int) -> None:
     io.write_stack(folder, capture.images)
     np.save(folder / "depth_gt_mm.npy", capture.depth_mm.astype(np.float32))
     cv2.imwrite(str(folder / "valid_gt.png"), capture.valid.astype(np.uint8) * 255)
-    (folder / "sensor.yaml").write_text(
-        yaml.safe_dump({"camera": rig.camera().to_dict(), "patterns": patterns.to_dict()}, sort_keys=False)
-    )
+    _write_sensor(folder, rig, patterns)
     (folder / "capture.yaml").write_text(
         yaml.safe_dump(
             {"scene": scene_name, "seed": seed, "rig": rig.to_dict(), "images": patterns.names()}, sort_keys=False
@@ -110,9 +115,7 @@ def _simulate_board(rig: Rig, patterns: PatternSet, board: Board, count: int, se
         io.write_stack(folder / "vertical", vertical)
         io.write_stack(folder / "horizontal", horizontal)
         cv2.imwrite(str(folder / "board.png"), image)
-    (out / "sensor.yaml").write_text(
-        yaml.safe_dump({"camera": rig.camera().to_dict(), "patterns": patterns.to_dict()}, sort_keys=False)
-    )
+    _write_sensor(out, rig, patterns)
     print(f"wrote {count} board poses (board.png, vertical/, horizontal/) and sensor.yaml to {out}")
 
 
