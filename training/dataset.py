@@ -84,6 +84,12 @@ def load_sample(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return z["input"], decode_depth(z["label"]), decode_depth(z["truth"])
 
 
+def sample_family(path, default: str = "?") -> str:
+    """The scene family a sample was drawn from (sets without families: default)."""
+    with np.load(path, allow_pickle=False) as z:
+        return str(z["family"]) if "family" in z else default
+
+
 def load_phase_targets(path) -> tuple[np.ndarray, np.ndarray, str]:
     """(fringe numerator/denominator float32 (2, H, W), absolute phase float32 NaN-invalid, family)
     of a families-set sample."""

@@ -28,7 +28,7 @@ from fpp_nodes.core.reconstruct import CompositeDecoder, reconstruct_ftp
 from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
 from fpp_nodes.core.workflow import fringe_depth_mm
 
-from .dataset import load_sample, split_files
+from .dataset import load_sample, sample_family, split_files
 from .models import pad_to_stride
 from .train import load_checkpoint, model_from_checkpoint
 
@@ -68,8 +68,7 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     held_out = set(info.get("held_out_families", []))
     errors, sure = {}, {}  # (family, model) -> ErrorTotals against the exact depth; [confidence sum, pixels]
     for f in split_files(data, split)[: limit or None]:
-        with np.load(f, allow_pickle=False) as z:
-            family = str(z["family"]) if "family" in z else info.get("scene", "?")
+        family = sample_family(f, info.get("scene", "?"))
         image, label, truth = load_sample(f)
         for name, predict in models:
             depth, confidence = (

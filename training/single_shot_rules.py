@@ -1,11 +1,11 @@
 """The single-shot path's pixel rules, re-checked on validation data: the shipped composite network on
 the composite set's validation split (never its test split). Each cell: coverage of the exact depth's
-pixels, and silent errors (output pixels off by more than 1 mm). Two tables, each against the
-order-confidence threshold:
+pixels, and silent errors (output pixels off by more than 1 mm). Three tables, each against the
+order-confidence threshold, the other rules as the shipped card has them:
 - the edge rule's step (trusted_single_shot drops a pixel more than STEP mm from a neighbour; inf: no
-  rule), with the fringe mask's floor at MIN_MODULATION;
-- the fringe mask's floor (fringe_mask: the network's fringe modulation, a fraction of full scale),
-  with the 2 mm edge rule.
+  rule);
+- the fringe mask's floor (fringe_mask: the network's fringe modulation, a fraction of full scale);
+- the decoder's smallest surface whose vote counts (CompositeDecoder.min_surface_px).
 
     python -m training.single_shot_rules [--data data/fpp/composite]
 """
@@ -16,15 +16,14 @@ import argparse
 
 import numpy as np
 
-from fpp_nodes.core.model import MIN_MODULATION, DepthModel, default_model_path
+from fpp_nodes.core.model import DepthModel, default_model_path
 from fpp_nodes.core.reconstruct import QualityLimits
 
-from .dataset import load_sample, split_files
-from .export import rule_counts
+from .dataset import load_sample, sample_family, split_files
+from .export import FLOOR_GRID, SURFACE_GRID, rule_counts, rule_rates
 
-CONFIDENCES = (0.5, 0.7, 0.8, 0.9, 0.92, 0.94, 0.95, 0.98)
+CONFIDENCES = (0.5, 0.7, 0.75, 0.8, 0.82, 0.84, 0.86, 0.88, 0.9, 0.92, 0.95)
 STEPS_MM = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, np.inf)
-FLOORS = (0.01, 0.02, 0.03, MIN_MODULATION)
 STEP = QualityLimits.max_depth_step_mm
 
 
@@ -38,24 +37,27 @@ def main():
     args = parser.parse_args()
     model = DepthModel(default_model_path())
     files = split_files(args.data, "val")
-    outputs = []  # (image, exact depth, network outputs), run once
+    outputs = []  # (image, exact depth, network outputs, family), run once
     for f in files:
         image, _, truth = load_sample(f)
-        outputs.append((image, truth, model.outputs(image)))
-    counts = rule_counts(outputs, model.decoder, (MIN_MODULATION,), CONFIDENCES, STEPS_MM)
-    counts.update(rule_counts(outputs, model.decoder, FLOORS, CONFIDENCES))
+        outputs.append((image, truth, model.outputs(image), sample_family(f)))
+    floor, surface = model.min_modulation, model.decoder.min_surface_px
+    counts = rule_counts(outputs, model.decoder, (floor,), CONFIDENCES, STEPS_MM, (surface,))
+    counts.update(rule_counts(outputs, model.decoder, FLOOR_GRID, CONFIDENCES, surfaces_px=(surface,)))
+    counts.update(rule_counts(outputs, model.decoder, (floor,), CONFIDENCES, surfaces_px=SURFACE_GRID))
     print(f"{args.data} validation split, {len(files)} scenes; each cell: coverage, silent errors")
-    table("edge rule step", [(f"step {s:g} mm", (MIN_MODULATION, s)) for s in STEPS_MM], counts)
-    table("fringe mask floor", [(f"floor {m:g}", (m, STEP)) for m in FLOORS], counts)
+    table("edge rule step", [(f"step {s:g} mm", (floor, surface, s)) for s in STEPS_MM], counts)
+    table("fringe mask floor", [(f"floor {m:g}", (m, surface, STEP)) for m in FLOOR_GRID], counts)
+    table("smallest surface", [(f"surface {px} px", (floor, px, STEP)) for px in SURFACE_GRID], counts)
 
 
 def table(title: str, columns: list, counts: dict) -> None:
     print(f"\n{title}\n{'confidence':>10} " + " ".join(f"{name:>16}" for name, _ in columns))
     for c in CONFIDENCES:
         cells = []
-        for _, (floor, step) in columns:
-            n = counts[floor, c, step]
-            cells.append(f"{n[0] / n[2]:7.1%} {n[1] / max(n[0], 1):7.2%}")
+        for _, (floor, surface, step) in columns:
+            r = rule_rates(counts[floor, surface, c, step])
+            cells.append(f"{r['coverage']:7.1%} {r['silent_errors']:7.2%}")
         print(f"{c:>10} " + " ".join(f"{cell:>16}" for cell in cells))
 
 

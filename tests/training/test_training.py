@@ -12,7 +12,14 @@ import yaml
 
 from fpp_nodes.core.model import DepthModel, ModelError
 from training.dataset import decode_depth, encode_depth, load_phase_targets, load_sample, split_files, write_set
-from training.export import export
+from training.export import (
+    CONFIDENCE_GRID,
+    FLOOR_GRID,
+    SILENT_ERROR_BUDGET,
+    SILENT_ERROR_LIMIT,
+    SURFACE_GRID,
+    export,
+)
 from training.models import build, layer_counts, pad_to_stride
 from training.train import TrainConfig, load_checkpoint, model_from_checkpoint, train
 
@@ -290,10 +297,15 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     assert card["decoding"]["depth_range_mm"] == [1000.0, 1350.0] and "val" in card["decoding"]["chosen_on"]
     model = DepthModel(tmp_path / "m.onnx", threads=1)
     assert model.reads == "composite"
-    # both rules chosen together on validation, and the one the model runs with
-    assert model.min_modulation == card["decoding"]["min_modulation"] in (0.01, 0.02, 0.03, 0.05)
-    chosen = card["decoding"]["validation"][f"floor {model.min_modulation}"][str(model.min_confidence)]
-    assert chosen["silent_errors"] <= 0.005 or model.min_confidence == 0.9999
+    # the three rules chosen together on validation, and the ones the model runs with
+    assert model.min_modulation == card["decoding"]["min_modulation"] in FLOOR_GRID
+    assert model.decoder.min_surface_px == card["decoding"]["min_surface_px"] in SURFACE_GRID
+    rule = f"floor {model.min_modulation} surface {model.decoder.min_surface_px}"
+    chosen = card["decoding"]["validation"][rule][str(model.min_confidence)]
+    within = chosen["silent_errors"] <= SILENT_ERROR_BUDGET
+    assert (within and chosen["worst_family_silent_errors"] <= SILENT_ERROR_LIMIT) or (
+        model.min_confidence == CONFIDENCE_GRID[-1]
+    )
     depth, confidence = model.infer(load_sample(split_files(data, "test")[0])[0])
     sure = confidence[np.isfinite(confidence)]
     assert sure.size and sure.min() >= 0 and sure.max() <= 1

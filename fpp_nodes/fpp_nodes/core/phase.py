@@ -69,6 +69,11 @@ def angle(y: np.ndarray, x: np.ndarray) -> np.ndarray:
     return phi
 
 
+def wrap_phase(phase):
+    """A phase, or a difference of phases, brought into [-pi, pi)."""
+    return (phase + np.pi) % TWO_PI - np.pi
+
+
 def wrapped_phase(images: np.ndarray) -> np.ndarray:
     """Least-squares wrapped phase of N phase-shifted images."""
     return angle(*phase_sums(images))
@@ -156,13 +161,10 @@ def unwrap_spatial(wrapped: np.ndarray) -> np.ndarray:
     psi = np.asarray(wrapped, np.float64)
     h, w = psi.shape
 
-    def wrap(a):
-        return (a + np.pi) % TWO_PI - np.pi
-
     dx = np.zeros_like(psi)
     dy = np.zeros_like(psi)
-    dx[:, :-1] = wrap(np.diff(psi, axis=1))
-    dy[:-1, :] = wrap(np.diff(psi, axis=0))
+    dx[:, :-1] = wrap_phase(np.diff(psi, axis=1))
+    dy[:-1, :] = wrap_phase(np.diff(psi, axis=0))
     rho = dx.copy()
     rho[:, 1:] -= dx[:, :-1]
     rho += dy

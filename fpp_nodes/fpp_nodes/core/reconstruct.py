@@ -20,6 +20,7 @@ from .phase import (
     phase_noise,
     unwrap_spatial,
     unwrap_temporal,
+    wrap_phase,
     wrapped_phase,
 )
 
@@ -244,14 +245,18 @@ class CompositeDecoder:
 
     One pixel's code is noisy; a surface's is not: its absolute phase is smooth, and a wrong order is
     2 pi off. A pixel keeps its order only where it is the order nearest the median phase of the 5 x 5
-    pixels around it (taken twice); its confidence is the vote: the share of the pixels in the
-    VOTE_WINDOW around it that keep their order so (a check of each pixel's code residual as well
-    bought no coverage at equal silent errors on validation data). Depth is NaN where a pixel does
-    not, below min_confidence and where the image shows no fringes: the decoder never adopts an order
-    a pixel's own code did not give.
+    pixels around it (taken twice). Its confidence is the lesser of two votes: the share of the
+    pixels in the VOTE_WINDOW around it that keep their order so, and the share of its surface's
+    (order_surfaces: the pixels joined to it through neighbours whose orders step as the carrier does)
+    that do; a surface smaller than min_surface_px, or a pixel beside an order step the carrier does
+    not show, has none. A patch of wrong orders inside a surface is cut off by the steps around it and
+    is judged on its own codes; a wrong patch whose codes agree with it needs min_surface_px of them.
+    Depth is NaN where a pixel does not keep its order, below min_confidence and where the image shows
+    no fringes: the decoder never adopts an order a pixel's own code did not give.
     """
 
-    def __init__(self, calibration: Calibration, depth_range_mm: tuple[float, float]):
+    def __init__(self, calibration: Calibration, depth_range_mm: tuple[float, float], min_surface_px: int = 0):
+        self.min_surface_px = min_surface_px
         if calibration.code_model is None:
             raise PhaseError("the composite decoder needs a calibration made with the composite pattern (a code model)")
         cam = calibration.camera
@@ -299,7 +304,7 @@ class CompositeDecoder:
         closest = np.inf
         for a in range(len(codes)):
             for b in range(a + 1, len(codes)):
-                d = np.abs(np.mod(codes[a] - codes[b] + np.pi, TWO_PI) - np.pi)
+                d = np.abs(wrap_phase(codes[a] - codes[b]))
                 closest = min(closest, float(np.where(inside[a] & inside[b], d, np.inf).min()))
         return closest
 
@@ -342,14 +347,32 @@ class CompositeDecoder:
         for _ in range(2):  # the order nearest the neighbourhood's median phase
             local = carrier + two_pi * np.rint((cv2.medianBlur(local, 5) - carrier) / two_pi)
         agree = (np.abs(own - local) < np.pi) & fringes
-        confidence = cv2.boxFilter(
-            agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW), borderType=cv2.BORDER_REPLICATE
-        )
+        vote = cv2.boxFilter(agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW), borderType=cv2.BORDER_REPLICATE)
+        surface, size = order_surfaces(carrier, local, fringes)
+        share = np.bincount(surface.ravel(), weights=agree.ravel(), minlength=size.size) / np.maximum(size, 1)
+        share[(size < self.min_surface_px) | (np.arange(size.size) == 0)] = 0  # label 0: beside an order step
+        confidence = np.minimum(vote, share.astype(np.float32)[surface])
         confidence[~fringes] = np.nan
         ca, cb, da, db = self.terms
         depth = (ca + cb * own) / (da + db * own)
         depth[~(agree & (confidence >= min_confidence))] = np.nan
         return depth, confidence
+
+
+def order_surfaces(carrier: np.ndarray, absolute: np.ndarray, fringes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(label per pixel, pixels per label) of the surfaces an absolute phase map holds: pixels with
+    fringes, joined through their 4 neighbours, where the absolute phase steps as the wrapped carrier
+    does (the same order on a continuous surface). A pixel beside a step it does not (a fringe order
+    changing where the carrier shows no step) is on none: label 0."""
+    inside = fringes.copy()
+    across = np.abs(np.diff(absolute, axis=1) - wrap_phase(np.diff(carrier, axis=1))) > np.pi
+    down = np.abs(np.diff(absolute, axis=0) - wrap_phase(np.diff(carrier, axis=0))) > np.pi
+    inside[:, 1:] &= ~across
+    inside[:, :-1] &= ~across
+    inside[1:] &= ~down
+    inside[:-1] &= ~down
+    count, labels = cv2.connectedComponents(inside.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+    return labels, np.bincount(labels.ravel(), minlength=count)
 
 
 FTP_MIN_CONFIDENCE = 0.5  # the composite by FTP: not tuned (a baseline), half the neighbourhood agrees

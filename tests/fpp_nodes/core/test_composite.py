@@ -8,7 +8,7 @@ import pytest
 from fpp_nodes.core.calibration import Calibration, CalibrationError
 from fpp_nodes.core.patterns import CODE_ORDERS
 from fpp_nodes.core.phase import PhaseError
-from fpp_nodes.core.reconstruct import CompositeDecoder
+from fpp_nodes.core.reconstruct import CompositeDecoder, order_surfaces
 from fpp_nodes.core.scenes import FAMILY_NAMES, SURFACE_DEPTH_MM, make_scene, plane_scene
 from fpp_nodes.core.simulation import SceneRenderer, random_rig
 
@@ -51,7 +51,7 @@ def test_exact_phases_decode_to_the_exact_depth_on_every_family(rig, patterns, c
     depth, confidence = decoder(as_network_output(*exact_phases(renderer, patterns)), 0.5, lit)
     given = np.isfinite(depth)
     assert not (given & ~lit).any() and np.abs(depth - scene.depth_mm)[given].max() < 0.05
-    assert given.sum() > 0.97 * lit.sum() and np.median(confidence[lit]) == 1.0
+    assert given.sum() > 0.97 * lit.sum() and np.median(confidence[lit]) > 0.99
 
 
 def test_a_surface_outvotes_scattered_order_errors_and_a_code_of_noise_is_nan(rig, patterns, calibration):
@@ -69,6 +69,40 @@ def test_a_surface_outvotes_scattered_order_errors_and_a_code_of_noise_is_nan(ri
     assert np.nanmax(np.abs(depth - 1150.0)) < 0.05
     depth, confidence = decoder(as_network_output(carrier, rng.uniform(0, 2 * np.pi, code.shape)), 0.5)
     assert np.isnan(depth).mean() > 0.99
+
+
+def test_a_coherent_patch_of_wrong_orders_is_its_own_surface_and_too_small_to_trust(rig, patterns, calibration):
+    """A 40 x 40 patch whose codes all point one order up (what texture at the code's scale does):
+    inside it every pixel agrees with its neighbours, so the window's vote alone keeps it, an order
+    (9-17 mm) off. Its order steps where the carrier shows none, so it is a surface of its own, and
+    1600 pixels are fewer than min_surface_px: NaN, while the plane around it keeps its depth."""
+    renderer = SceneRenderer(rig, plane_scene(rig, 1150.0))
+    carrier, code = exact_phases(renderer, patterns)
+    patch = np.zeros(code.shape, bool)
+    patch[200:240, 300:340] = True
+    biased = as_network_output(carrier, code + patch * 2 * np.pi / CODE_ORDERS)
+    depth, _ = CompositeDecoder(calibration, SURFACE_DEPTH_MM)(biased, 0.5)
+    assert np.mean(np.abs(depth[patch] - 1150.0) > 5) > 0.5  # the window's vote alone: an order off
+    depth, confidence = CompositeDecoder(calibration, SURFACE_DEPTH_MM, min_surface_px=2000)(biased, 0.5)
+    assert not np.isfinite(depth[patch]).any() and np.mean(confidence[patch] == 0) > 0.9
+    assert np.isfinite(depth[~patch]).mean() > 0.99 and np.nanmax(np.abs(depth - 1150.0)) < 0.05
+
+
+def test_order_surfaces_join_pixels_whose_orders_step_as_the_carrier_does():
+    """A ramp of absolute phase: one surface. Two orders added to a block: the block is a surface of
+    its own, and the pixels either side of its border (an order step the carrier does not show) are on
+    none. The block's border where the fringes stop (outside the mask) cuts nothing."""
+    absolute = np.tile(np.linspace(0, 60, 64, dtype=np.float32), (48, 1))
+    carrier = np.mod(absolute, 2 * np.pi)
+    fringes = np.ones(absolute.shape, bool)
+    labels, sizes = order_surfaces(carrier, absolute, fringes)
+    assert sizes.size == 2 and sizes[1] == absolute.size
+    stepped = absolute.copy()
+    stepped[10:30, 20:40] += 4 * np.pi
+    labels, sizes = order_surfaces(carrier, stepped, fringes)
+    assert labels[20, 30] != labels[5, 5] and labels[20, 30] > 0 and labels[5, 5] > 0
+    assert labels[20, 19] == labels[20, 20] == 0 and labels[9, 30] == labels[10, 30] == 0
+    assert sizes[labels[20, 30]] == 18 * 18
 
 
 def test_the_code_tells_every_two_orders_of_the_working_range_apart(calibration):
