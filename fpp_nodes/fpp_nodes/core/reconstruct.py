@@ -247,10 +247,10 @@ class CompositeDecoder:
     2 pi off. A pixel keeps its order only where it is the order nearest the median phase of the 5 x 5
     pixels around it (taken twice). Its confidence is the lesser of two votes: the share of the
     pixels in the VOTE_WINDOW around it that keep their order so, and the share of its surface's
-    (order_surfaces: the pixels joined to it through neighbours whose orders step as the carrier does)
-    that do; a surface smaller than min_surface_px, or a pixel beside an order step the carrier does
-    not show, has none. A patch of wrong orders inside a surface is cut off by the steps around it and
-    is judged on its own codes; a wrong patch whose codes agree with it needs min_surface_px of them.
+    (order_surfaces: the pixels joined to it through neighbours whose absolute phases differ by less
+    than pi) that do; a surface smaller than min_surface_px, or a pixel beside a step, has none. A
+    patch of wrong orders inside a surface is cut off by the 2 pi steps around it and judged on its own
+    codes; a wrong patch whose codes agree with it needs min_surface_px of them.
     Depth is NaN where a pixel does not keep its order, below min_confidence and where the image shows
     no fringes: the decoder never adopts an order a pixel's own code did not give.
     """
@@ -348,10 +348,10 @@ class CompositeDecoder:
             local = carrier + two_pi * np.rint((cv2.medianBlur(local, 5) - carrier) / two_pi)
         agree = (np.abs(own - local) < np.pi) & fringes
         vote = cv2.boxFilter(agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW), borderType=cv2.BORDER_REPLICATE)
-        surface, size = order_surfaces(carrier, local, fringes)
-        share = np.bincount(surface.ravel(), weights=agree.ravel(), minlength=size.size) / np.maximum(size, 1)
-        share[(size < self.min_surface_px) | (np.arange(size.size) == 0)] = 0  # label 0: beside an order step
-        confidence = np.minimum(vote, share.astype(np.float32)[surface])
+        surface, size = order_surfaces(local, fringes)
+        share = (np.bincount(surface[agree], minlength=size.size) / np.maximum(size, 1)).astype(np.float32)
+        share[(size < self.min_surface_px) | (np.arange(size.size) == 0)] = 0  # label 0: beside a step
+        confidence = np.minimum(vote, np.take(share, surface))
         confidence[~fringes] = np.nan
         ca, cb, da, db = self.terms
         depth = (ca + cb * own) / (da + db * own)
@@ -359,14 +359,15 @@ class CompositeDecoder:
         return depth, confidence
 
 
-def order_surfaces(carrier: np.ndarray, absolute: np.ndarray, fringes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def order_surfaces(absolute: np.ndarray, fringes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(label per pixel, pixels per label) of the surfaces an absolute phase map holds: pixels with
-    fringes, joined through their 4 neighbours, where the absolute phase steps as the wrapped carrier
-    does (the same order on a continuous surface). A pixel beside a step it does not (a fringe order
-    changing where the carrier shows no step) is on none: label 0."""
+    fringes joined through their 4 neighbours where the absolute phase changes by less than pi (Itoh's
+    condition, which a continuous surface meets: the orders step as the wrapped phase does). A pixel
+    beside a change of more (a depth step, or an order that disagrees with its neighbour's) is on
+    none: label 0."""
     inside = fringes.copy()
-    across = np.abs(np.diff(absolute, axis=1) - wrap_phase(np.diff(carrier, axis=1))) > np.pi
-    down = np.abs(np.diff(absolute, axis=0) - wrap_phase(np.diff(carrier, axis=0))) > np.pi
+    across = np.abs(np.diff(absolute, axis=1)) >= np.pi
+    down = np.abs(np.diff(absolute, axis=0)) >= np.pi
     inside[:, 1:] &= ~across
     inside[:, :-1] &= ~across
     inside[1:] &= ~down

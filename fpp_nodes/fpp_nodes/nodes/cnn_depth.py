@@ -8,8 +8,9 @@ the newest frame (KEEP_LAST 1): under load older frames are dropped, never queue
 depth/image (32FC1, metres, NaN where the image shows no usable fringes: shadows, dark or saturated
 areas), depth/camera_info and points (organized PointCloud2, metres), with the image's header, and
 its health on /diagnostics. A phase-aware model also gives confidence/image (32FC1, 0-1: for the
-composite model how well the code agrees with the chosen fringe order, 1 exactly, 0 half-way to the
-next; for the paper-pattern phase model the probability that the order is right; depth is NaN below
+composite model the share of the pixels around it, and of its whole surface, whose codes give the
+order chosen there, the lesser of the two; for the paper-pattern phase model the probability that
+the order is right; depth is NaN below
 the threshold its card holds, chosen on validation data). A frame of the wrong size or encoding is
 rejected and counted; a missing, corrupt or mismatched model stops the node at start. Parameters:
 model (path; empty = the shipped default), providers (CPUExecutionProvider; CUDA where present),

@@ -148,7 +148,7 @@ def test_the_shipped_single_shot_model_is_not_silently_wrong_where_the_papers_un
     """Issue 10's failure cases (a bump, a sphere, blocks, a tilted plane; in no data set): the paper's
     UNet gives depth to every lit pixel, most of them off by more than 1 mm; the shipped composite model
     gives depth to at least 85% of the lit pixels (measured 91-99%), at most 0.5% of it off by more than
-    1 mm on the smooth shapes (measured 0-0.1%) and 3% on the blocks (2.2%: at the step edges)."""
+    1 mm (measured 0-0.2%; the blocks' step edges, an order off before the surface vote, are NaN now)."""
     from fpp_nodes.core.model import DepthModel, default_model_path, paper_model_path
     from training.figures import failure_figure
 
@@ -156,7 +156,7 @@ def test_the_shipped_single_shot_model_is_not_silently_wrong_where_the_papers_un
         [("shipped", DepthModel(default_model_path())), ("paper", DepthModel(paper_model_path()))], rig
     )
     rows = {(scene, model): (silent, cover) for scene, model, _, silent, cover in table}
-    for (scene, model), (silent, cover) in rows.items():
+    for (_, model), (silent, cover) in rows.items():
         if model == "shipped":
-            assert cover >= 0.85 and silent <= (0.03 if scene.startswith("blocks") else 0.005), rows
+            assert cover >= 0.85 and silent <= 0.005, rows
     assert rows["plane tilted 15 deg", "paper"][0] > 0.5 and rows["plane tilted 15 deg", "paper"][1] > 0.99, rows

@@ -74,7 +74,7 @@ def test_a_surface_outvotes_scattered_order_errors_and_a_code_of_noise_is_nan(ri
 def test_a_coherent_patch_of_wrong_orders_is_its_own_surface_and_too_small_to_trust(rig, patterns, calibration):
     """A 40 x 40 patch whose codes all point one order up (what texture at the code's scale does):
     inside it every pixel agrees with its neighbours, so the window's vote alone keeps it, an order
-    (9-17 mm) off. Its order steps where the carrier shows none, so it is a surface of its own, and
+    (9-17 mm) off. Its absolute phase steps by 2 pi at its border, so it is a surface of its own, and
     1600 pixels are fewer than min_surface_px: NaN, while the plane around it keeps its depth."""
     renderer = SceneRenderer(rig, plane_scene(rig, 1150.0))
     carrier, code = exact_phases(renderer, patterns)
@@ -88,18 +88,16 @@ def test_a_coherent_patch_of_wrong_orders_is_its_own_surface_and_too_small_to_tr
     assert np.isfinite(depth[~patch]).mean() > 0.99 and np.nanmax(np.abs(depth - 1150.0)) < 0.05
 
 
-def test_order_surfaces_join_pixels_whose_orders_step_as_the_carrier_does():
-    """A ramp of absolute phase: one surface. Two orders added to a block: the block is a surface of
-    its own, and the pixels either side of its border (an order step the carrier does not show) are on
-    none. The block's border where the fringes stop (outside the mask) cuts nothing."""
-    absolute = np.tile(np.linspace(0, 60, 64, dtype=np.float32), (48, 1))
-    carrier = np.mod(absolute, 2 * np.pi)
+def test_order_surfaces_join_neighbours_whose_absolute_phases_differ_by_less_than_pi():
+    """A ramp of absolute phase (1 rad per pixel): one surface. Two orders added to a block: the block
+    is a surface of its own, and the pixels either side of its border are on none."""
+    absolute = np.tile(np.arange(64, dtype=np.float32), (48, 1))
     fringes = np.ones(absolute.shape, bool)
-    labels, sizes = order_surfaces(carrier, absolute, fringes)
+    labels, sizes = order_surfaces(absolute, fringes)
     assert sizes.size == 2 and sizes[1] == absolute.size
     stepped = absolute.copy()
     stepped[10:30, 20:40] += 4 * np.pi
-    labels, sizes = order_surfaces(carrier, stepped, fringes)
+    labels, sizes = order_surfaces(stepped, fringes)
     assert labels[20, 30] != labels[5, 5] and labels[20, 30] > 0 and labels[5, 5] > 0
     assert labels[20, 19] == labels[20, 20] == 0 and labels[9, 30] == labels[10, 30] == 0
     assert sizes[labels[20, 30]] == 18 * 18
