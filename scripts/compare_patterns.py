@@ -136,7 +136,7 @@ def main():
         )
     print(
         "paper: its image carries no fringe order (every order a guess); composite: the order from the code, "
-        "per pixel and after the decoder's vote (NaN where unsure, min_confidence 0.5)"
+        "per pixel and after the decoder's votes (NaN where unsure, min_confidence 0.5)"
     )
 
 
