@@ -255,10 +255,10 @@ def write_bag_set(
         if topic.endswith("projector/pattern"):
             shown.add(stamp, image)
             continue
-        index = shown.match(stamp)
-        if index is None:
+        match = shown.match(stamp)
+        if match is None:
             continue
-        sequence, _ = assembler.add(index, stamp, image.copy())
+        sequence, _ = assembler.add(match[0], stamp, image.copy(), match[1])
         if sequence is not None:
             rec = psp(sequence.images)
             composite = phase_targets(sequence.images, rec, calibration) if patterns.single_shot == "composite" else {}

@@ -1,10 +1,11 @@
 """Assembling camera frames into complete phase-shift sequences (no ROS here).
 
 A frame is identified by the pattern the projector showed when it was taken (ShownPatterns): its
-index in the pattern set. A sequence is the frames of indices 0 .. K-1, in order, with increasing stamps. A
-missing, duplicated or out-of-order frame, a frame of another size or type, or time running
-backwards (a camera that restarted) ends the sequence in progress: it is dropped, counted and the
-reason returned, never mixed into the next one.
+index in the pattern set, and which showing it was (the projector's running count). A sequence is the
+frames of indices 0 .. K-1, of consecutive showings, with increasing stamps. A missing, duplicated or
+out-of-order frame, a gap of whole cycles (a camera that was away for a while), a frame of another
+size or type, or time running backwards (a camera that restarted) ends the sequence in progress: it
+is dropped, counted and the reason returned, never mixed into the next one.
 """
 
 from __future__ import annotations
@@ -25,19 +26,22 @@ class ShownPatterns:
     def __init__(self, patterns: PatternSet, max_offset_ns: int):
         self.index_of_bytes = {image.tobytes(): i for i, image in enumerate(pattern_images(patterns))}
         self.max_offset_ns = max_offset_ns
-        self.events: deque[tuple[int, int]] = deque(maxlen=4 * patterns.count)  # (stamp ns, pattern index)
+        self.events: deque[tuple[int, int, int]] = deque(maxlen=4 * patterns.count)  # (stamp ns, index, showing)
+        self.showings = 0  # patterns of the set shown so far
 
     def add(self, stamp_ns: int, pattern_image: np.ndarray) -> int | None:
         """Note a shown pattern; its index, or None for an image not in the pattern set (not noted)."""
         index = self.index_of_bytes.get(pattern_image.tobytes())
         if index is not None:
-            self.events.append((stamp_ns, index))
+            self.events.append((stamp_ns, index, self.showings))
+            self.showings += 1
         return index
 
-    def match(self, frame_stamp_ns: int) -> int | None:
-        """The index of the pattern a frame stamped frame_stamp_ns saw, or None if none was shown near it."""
+    def match(self, frame_stamp_ns: int) -> tuple[int, int] | None:
+        """(pattern index, showing number) of the pattern a frame stamped frame_stamp_ns saw, or None if
+        none was shown near it."""
         best = min(self.events, key=lambda e: abs(e[0] - frame_stamp_ns), default=None)
-        return best[1] if best is not None and abs(best[0] - frame_stamp_ns) <= self.max_offset_ns else None
+        return best[1:] if best is not None and abs(best[0] - frame_stamp_ns) <= self.max_offset_ns else None
 
     def none_will_match(self, frame_stamp_ns: int) -> bool:
         """True when a pattern was shown after the frame's window closed, so no later event can match it."""
@@ -67,6 +71,7 @@ class SequenceAssembler:
         self.stats = SequenceStats()
         self._buffer: np.ndarray | None = None
         self._stamps: list[int] = []
+        self._showing: int | None = None  # the showing the last frame saw
 
     @property
     def in_progress(self) -> int:
@@ -80,9 +85,12 @@ class SequenceAssembler:
         self._stamps = []
         return reason
 
-    def add(self, index: int, stamp_ns: int, image: np.ndarray) -> tuple[Sequence | None, str | None]:
-        """Feed one frame. Returns (sequence, None) when it completes one, (None, reason) when it ends
-        one in progress without completing it, else (None, None)."""
+    def add(
+        self, index: int, stamp_ns: int, image: np.ndarray, showing: int | None = None
+    ) -> tuple[Sequence | None, str | None]:
+        """Feed one frame (showing: which showing of its pattern it saw, ShownPatterns.match; None: not
+        known). Returns (sequence, None) when it completes one, (None, reason) when it ends one in
+        progress without completing it, else (None, None)."""
         self.stats.frames_in += 1
         dropped = None
         if self._stamps:
@@ -91,6 +99,8 @@ class SequenceAssembler:
                 dropped = self._drop(
                     f"time went backwards: frame {index} stamped before frame {expected - 1} (camera restarted?)"
                 )
+            elif showing is not None and self._showing is not None and showing > self._showing + 1:
+                dropped = self._drop(f"missing frames: {showing - self._showing - 1} patterns shown without one")
             elif index == 0:
                 dropped = self._drop(f"incomplete: a new sequence began after {expected} of {self.count} frames")
             elif index != expected:
@@ -108,6 +118,7 @@ class SequenceAssembler:
                 self._buffer = np.empty((self.count,) + image.shape, image.dtype)
         self._buffer[len(self._stamps)] = image
         self._stamps.append(stamp_ns)
+        self._showing = showing
         if len(self._stamps) < self.count:
             return None, dropped
         done = Sequence(self._buffer, self._stamps)

@@ -81,13 +81,13 @@ class CaptureSequence(Node):
         (the two topics are delivered independently) or a later event shows none will."""
         while self.waiting:
             head = self.waiting[0]
-            index = self.shown.match(stamp_ns(head.header.stamp))
-            if index is None:
+            shown = self.shown.match(stamp_ns(head.header.stamp))
+            if shown is None:
                 if not self.shown.none_will_match(stamp_ns(head.header.stamp)):
                     return
                 self._unmatched(self.waiting.popleft())
                 continue
-            self._assemble(self.waiting.popleft(), index)
+            self._assemble(self.waiting.popleft(), *shown)
 
     def _unmatched(self, frame: Image):
         self.unmatched += 1
@@ -97,7 +97,7 @@ class CaptureSequence(Node):
             f"{self.max_offset_ns / 1e9:g} s); {self.unmatched} so far",
         )
 
-    def _assemble(self, msg: Image, index: int):
+    def _assemble(self, msg: Image, index: int, showing: int):
         try:
             image = image_to_numpy(msg)
             check_frame(image, self.calibration.camera)
@@ -105,7 +105,7 @@ class CaptureSequence(Node):
             # the sequence it belonged to is incomplete now and will be dropped, not mixed
             self.health.report("frames rejected", f"camera frame rejected: {e}")
             return
-        sequence, dropped = self.assembler.add(index, stamp_ns(msg.header.stamp), image)
+        sequence, dropped = self.assembler.add(index, stamp_ns(msg.header.stamp), image, showing)
         stats = self.assembler.stats
         if dropped:
             self.health.report(

@@ -69,6 +69,18 @@ def test_joining_mid_sequence_waits_for_the_start():
     assert len(done) == 1 and not reasons and a.stats.frames_discarded == 2
 
 
+def test_a_partial_sequence_is_not_completed_a_whole_cycle_later():
+    """A camera away for a whole number of cycles comes back at the very index the sequence in
+    progress expects: the index alone cannot tell, the projector's showings can. Dropped, never mixed."""
+    a = SequenceAssembler(4)
+    for i in range(2):
+        assert a.add(i, 10 * i, frame(i), showing=i) == (None, None)
+    seq, why = a.add(2, 100, frame(2), showing=2 + 4 * 3)
+    assert seq is None and why.startswith("missing frames: 12 patterns")
+    done, reasons = feed(a, [3, 0, 1, 2, 3], start_ns=200)
+    assert len(done) == 1 and not reasons and a.stats.dropped == 1
+
+
 def test_frames_are_matched_to_the_pattern_shown_nearest_their_stamp():
     """ShownPatterns, as capture_sequence and the bag data set use it: a pattern image is known by its
     bytes, a frame takes the pattern shown nearest its stamp within the offset, and a frame waits until
@@ -78,6 +90,6 @@ def test_frames_are_matched_to_the_pattern_shown_nearest_their_stamp():
     shown = ShownPatterns(patterns, max_offset_ns=5)
     assert shown.add(100, images[3]) == 3 and shown.add(200, images[4]) == 4
     assert shown.add(300, np.zeros_like(images[0])) is None and len(shown.events) == 2  # not in the set
-    assert shown.match(103) == 3 and shown.match(196) == 4 and shown.match(150) is None
+    assert shown.match(103) == (3, 0) and shown.match(196) == (4, 1) and shown.match(150) is None
     assert not shown.none_will_match(210)  # its pattern may still arrive
     assert shown.none_will_match(150)  # the pattern at 200 came after 150's window closed

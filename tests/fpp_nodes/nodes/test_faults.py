@@ -195,7 +195,7 @@ def test_a_camera_that_dies_mid_sequence_and_comes_back(ros_graph):
     check_clouds(robot, clouds, truth)
     # mid-sequence, once the camera has delivered part of it (killed between sequences it would break
     # none), no goodbye: a crash or a pulled cable
-    assert robot.spin_until(lambda: frames and 4 <= (shown.match(frames[-1]) or 0) <= 12, 30)
+    assert robot.spin_until(lambda: frames and 4 <= (shown.match(frames[-1]) or (0, 0))[0] <= 12, 30)
     os.killpg(camera.pid, signal.SIGKILL)
     camera.wait()
     robot.spin_until(lambda: False, 2.0)
