@@ -200,7 +200,8 @@ def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | No
         "patterns": dataset.get("calibration", {}).get("patterns"),
         "training": {
             "data": cfg.data,
-            "counts": dataset.get("counts"),
+            # what it learned from (checkpoints before they recorded it: the set's counts now)
+            "counts": (dataset.get("counts") or {}) | ckpt.get("counts", {}),
             "epochs": ckpt["epoch"],
             "seconds": round(ckpt["train_seconds"], 1),
             "config": ckpt["config"],

@@ -292,7 +292,10 @@ def evaluate(model, loader, device, loss_kind: str = "mse") -> dict:
     }
 
 
-def save_checkpoint(path, model, optimizer, scheduler, config: TrainConfig, epoch: int, history: list, seconds: float):
+def save_checkpoint(
+    path, model, optimizer, scheduler, config: TrainConfig, epoch: int, history: list, seconds: float, counts: dict
+):
+    """counts: the training and validation samples it learned from (the set may grow later)."""
     net = model.module if isinstance(model, DistributedDataParallel) else model
     tmp = Path(str(path) + ".tmp")
     torch.save(
@@ -306,6 +309,7 @@ def save_checkpoint(path, model, optimizer, scheduler, config: TrainConfig, epoc
             "scheduler": scheduler.state_dict(),
             "history": history,
             "train_seconds": seconds,
+            "counts": counts,
         },
         tmp,
     )
@@ -369,6 +373,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
 
     train_files = split_files(config.data, "train")[: config.limit or None]
     val_files = split_files(config.data, "val")
+    counts = {"train": len(train_files), "val": len(val_files)}
     if not train_files or not val_files:
         raise ValueError(f"{config.data} has no train or val samples (make them with python -m training.dataset)")
     phase_aware = config.arch in ("phase", "composite")
@@ -465,10 +470,10 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
             str(out / "epochs" / f"epoch_{epoch:04d}.png"),
             np.hstack([depth_colours(showcase[-1 if phase_aware else 1][0].numpy()), depth_colours(shown)]),
         )
-        save_checkpoint(out / "last.pt", model, optimizer, scheduler, config, epoch, history, seconds)
+        save_checkpoint(out / "last.pt", model, optimizer, scheduler, config, epoch, history, seconds, counts)
         if val_loss < best:
             best = val_loss
-            save_checkpoint(out / "best.pt", model, optimizer, scheduler, config, epoch, history, seconds)
+            save_checkpoint(out / "best.pt", model, optimizer, scheduler, config, epoch, history, seconds, counts)
         write_curves(out, history)
         extra = f", coverage {metrics['coverage']:.1%}, > 1 mm {metrics['silent_errors']:.2%}" if phase_aware else ""
         print(

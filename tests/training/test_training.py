@@ -292,7 +292,9 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
             batch_size=4,
         )
     )
+    write_set(tmp_path / "data", "composite", counts=(3, 1, 1), workers=1)  # the set grows after training
     card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m.onnx"))
+    assert card["training"]["counts"] == {"train": 2, "val": 1, "test": 1}  # what it learned from
     assert card["output"]["name"] == "fringe_phases" and card["input"]["content"] == "single-shot composite"
     assert card["decoding"]["depth_range_mm"] == [1000.0, 1350.0] and "val" in card["decoding"]["chosen_on"]
     model = DepthModel(tmp_path / "m.onnx", threads=1)
