@@ -89,14 +89,16 @@ def rule_rates(by_family: dict) -> dict:
 
 
 @torch.no_grad()
-def choose_decoding(model, data: str, decoder, limit: int = 60) -> dict:
+def choose_decoding(model, data: str, decoder, limit: int = 200) -> dict:
     """The fringe mask's floor, the smallest surface (composite decoders) and the order-confidence
     threshold that give the most coverage while the silent errors (output pixels off the exact depth
     by more than 1 mm) stay within SILENT_ERROR_BUDGET over the validation split and within
     SILENT_ERROR_LIMIT in each of its scene families: chosen on validation data, never on the test set."""
 
+    files = split_files(data, "val")[:limit]
+
     def samples():
-        for f in split_files(data, "val")[:limit]:
+        for f in files:
             image, _, truth = load_sample(f)
             out = predict(model, torch.from_numpy(network_input(image))[None, None])[0].numpy()
             yield image, truth, out, sample_family(f)
@@ -118,7 +120,7 @@ def choose_decoding(model, data: str, decoder, limit: int = 60) -> dict:
     if hasattr(decoder, "min_surface_px"):
         chosen["min_surface_px"] = surface
     return chosen | {
-        "chosen_on": f"{data} val",
+        "chosen_on": f"{data} val, {len(files)} scenes",
         "silent_error_budget": SILENT_ERROR_BUDGET,
         "silent_error_limit_per_family": SILENT_ERROR_LIMIT,
         "validation": {
