@@ -25,7 +25,13 @@ import torch
 import yaml
 
 from fpp_nodes.core.calibration import Calibration
-from fpp_nodes.core.model import PhaseOrderDecoder, fringe_mask, network_input, trusted_single_shot
+from fpp_nodes.core.model import (
+    MIN_MODULATION,
+    PhaseOrderDecoder,
+    fringe_mask,
+    network_input,
+    trusted_single_shot,
+)
 from fpp_nodes.core.patterns import PatternSet
 from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits
 from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
@@ -114,7 +120,9 @@ def choose_decoding(model, data: str, decoder, limit: int = 200) -> dict:
         and r["coverage"] > 0
     ]
     floor, surface, confidence = (
-        max(good, key=lambda k: (rows[k]["coverage"], k[2])) if good else (0.05, surfaces[-1], CONFIDENCE_GRID[-1])
+        max(good, key=lambda k: (rows[k]["coverage"], k[2]))
+        if good
+        else (MIN_MODULATION, surfaces[-1], CONFIDENCE_GRID[-1])
     )
     chosen = {"min_confidence": confidence, "min_modulation": floor}
     if hasattr(decoder, "min_surface_px"):

@@ -32,6 +32,7 @@ MAX_PHASE_NOISE_RAD = 0.05  # pixels the homography uses (as the plane calibrati
 VIRTUAL_PLANES = 7
 CORNER_REFINEMENTS = 2  # rounds of square_on_corners and recalibration
 SQUARE_ON_PX = 40  # a square's side in the square-on view of the board
+SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4)  # cornerSubPix's stop
 # Lens models the fit may use (OpenCV flags). Radial k1 alone is the default: more terms bought nothing
 # the poses could tell (scripts/board_vs_plane.py, one draw: 0.14, 0.12 and 0.13 mm at 7 degrees of
 # field, 0.20, 0.21 and 0.28 mm at 24 degrees, planes flat to 1.0-1.3x their noise); lenses with
@@ -133,8 +134,7 @@ def find_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
     )
     if not found:
         return None
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
-    return cv2.cornerSubPix(grey, corners, (7, 7), (-1, -1), criteria).reshape(-1, 2)
+    return cv2.cornerSubPix(grey, corners, (7, 7), (-1, -1), SUBPIX_CRITERIA).reshape(-1, 2)
 
 
 def square_on_corners(image, board: Board, k: np.ndarray, d: np.ndarray, rvec, tvec) -> np.ndarray:
@@ -153,8 +153,7 @@ def square_on_corners(image, board: Board, k: np.ndarray, d: np.ndarray, rvec, t
     square_on = cv2.remap(np.asarray(image, np.float32), uv[..., 0], uv[..., 1], cv2.INTER_LINEAR)
     start = ((board.object_points()[:, :2] + s) * scale).reshape(-1, 1, 2).astype(np.float32)
     window = int(0.3 * SQUARE_ON_PX)
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
-    refined = cv2.cornerSubPix(square_on, start, (window, window), (-1, -1), criteria).reshape(-1, 2) / scale - s
+    refined = cv2.cornerSubPix(square_on, start, (window, window), (-1, -1), SUBPIX_CRITERIA).reshape(-1, 2) / scale - s
     on_board = np.c_[refined, np.zeros(len(refined))]
     return cv2.projectPoints(on_board, rvec, tvec, k, d)[0].reshape(-1, 2).astype(np.float32)
 

@@ -350,7 +350,8 @@ class CompositeDecoder:
         vote = cv2.boxFilter(agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW), borderType=cv2.BORDER_REPLICATE)
         surface, size = order_surfaces(local, fringes)
         share = (np.bincount(surface[agree], minlength=size.size) / np.maximum(size, 1)).astype(np.float32)
-        share[(size < self.min_surface_px) | (np.arange(size.size) == 0)] = 0  # label 0: beside a step
+        share[0] = 0  # label 0: beside a step, on no surface
+        share[size < self.min_surface_px] = 0
         confidence = np.minimum(vote, np.take(share, surface))
         confidence[~fringes] = np.nan
         ca, cb, da, db = self.terms

@@ -81,13 +81,13 @@ class CaptureSequence(Node):
         (the two topics are delivered independently) or a later event shows none will."""
         while self.waiting:
             head = self.waiting[0]
-            shown = self.shown.match(stamp_ns(head.header.stamp))
-            if shown is None:
+            match = self.shown.match(stamp_ns(head.header.stamp))
+            if match is None:
                 if not self.shown.none_will_match(stamp_ns(head.header.stamp)):
                     return
                 self._unmatched(self.waiting.popleft())
                 continue
-            self._assemble(self.waiting.popleft(), *shown)
+            self._assemble(self.waiting.popleft(), *match)
 
     def _unmatched(self, frame: Image):
         self.unmatched += 1

@@ -69,7 +69,7 @@ class CnnDepth(Node):
                 f"the model was trained for {self.model.size[0]}x{self.model.size[1]} images, "
                 f"the calibration's camera is {cam.width}x{cam.height}"
             )
-        self.info = camera_info(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, distortion=cam.distortion)
+        self.info = camera_info(**cam.to_dict())
         self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
         self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
         self.points_pub = self.create_publisher(PointCloud2, Topics.POINTS, Qos.LARGE)

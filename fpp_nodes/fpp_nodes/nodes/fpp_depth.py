@@ -57,7 +57,7 @@ class FppDepth(Node):
         self.health.facts["calibration"] = describe(calibration, source)
         self.reconstruct = PspReconstructor(calibration, self.limits)
         cam = calibration.camera
-        self.info = camera_info(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, distortion=cam.distortion)
+        self.info = camera_info(**cam.to_dict())
 
     def _wanted(self):
         return {

@@ -47,7 +47,7 @@ class FringeCameraSim(Node):
         self.renderer = SceneRenderer(self.rig, self.scene)
         self.rng = np.random.default_rng(seed)
         cam = self.rig.camera()
-        self.info = camera_info(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, distortion=cam.distortion)
+        self.info = camera_info(**cam.to_dict())
         self.image_pub = self.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
         self.info_pub = self.create_publisher(CameraInfo, Topics.CAMERA_INFO, Qos.INFO)
         truth_pub = self.create_publisher(Image, Topics.TRUTH, Qos.LATCHED)
