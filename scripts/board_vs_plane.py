@@ -4,10 +4,12 @@ For each draw of 15 board poses (default 9x7 inner corners, 8 mm squares; tilted
 calibrate camera and projector from the board (fpp calibrate --board, each lens model), and compare
 with the plane calibration (five planes on a stage, the camera's intrinsics known) on the same rig:
 the worst pose's reprojection errors, the focal length's error, depth RMSE on two held-out scenes
-(objects, sculpture), fringe-order errors, and the flatness of a tilted plane filling the view (RMS
-about its best-fit plane, over the noise the images alone cause there).
+(objects, sculpture) as calibrated and once the true focal length is given (each depth times true /
+calibrated focal length: what is left when the focal length's scale is not the error), fringe-order
+errors, and the flatness of a tilted plane filling the view (RMS about its best-fit plane, over the
+noise the images alone cause there).
 
-    python scripts/board_vs_plane.py [--draws 3]
+    python scripts/board_vs_plane.py [--draws 6]
     python scripts/board_vs_plane.py --focal 1500 --projector-field 700 --k1 -0.25 --board 9x7:25   # a 24-deg field
 """
 
@@ -35,14 +37,18 @@ def flatness_ratio(calibration, images) -> float:
     return float(np.sqrt(np.mean(residual**2)) / np.sqrt(np.nanmean(rec.quality**2)))
 
 
-def scores(calibration, scenes, plane_images) -> str:
-    errors, orders = ErrorTotals(), 0
+def scores(calibration, scenes, plane_images, focal_px: float) -> str:
+    """RMSE, the RMSE left once the focal length is given (every depth times true / calibrated focal
+    length: depth scales with it), fringe-order errors and flatness."""
+    errors, rescaled, orders = ErrorTotals(), ErrorTotals(), 0
     for capture in scenes:
         rec = PspReconstructor(calibration)(capture.images)
         truth = np.where(capture.valid, capture.depth_mm, np.nan)
         errors.add(rec.depth_mm, truth)
+        rescaled.add(rec.depth_mm * (focal_px / calibration.camera.fx), truth)
         orders += ErrorTotals().add(rec.depth_mm, truth, fringe_depth_mm(calibration, rec.phase) / 2).over
-    return f"{errors.rmse:9.4f} {orders:7d} {flatness_ratio(calibration, plane_images):9.2f}"
+    flatness = flatness_ratio(calibration, plane_images)
+    return f"{errors.rmse:9.4f} {rescaled.rmse:10.4f} {orders:7d} {flatness:9.2f}"
 
 
 def main():
@@ -65,9 +71,10 @@ def main():
     print(f"rig: {rig.width}x{rig.height}, f {rig.focal_px:g} px, lens {lens}; board {args.board}")
     print(
         f"{'calibration':26} {'camera px':>9} {'proj px':>8} {'f error':>8} "
-        f"{'RMSE mm':>9} {'orders':>7} {'flatness':>9}"
+        f"{'RMSE mm':>9} {'f given':>10} {'orders':>7} {'flatness':>9}"
     )
-    print(f"{'planes (stage, known K)':26} {'-':>9} {'-':>8} {'-':>8} {scores(planes, scenes, plane_images)}")
+    reference = scores(planes, scenes, plane_images, rig.focal_px)
+    print(f"{'planes (stage, known K)':26} {'-':>9} {'-':>8} {'-':>8} {reference}")
     for draw in range(args.draws):
         rng = np.random.default_rng(100 + draw)
         poses = []
@@ -82,12 +89,13 @@ def main():
             f_error = calibration.camera.fx / rig.focal_px - 1
             print(
                 f"{f'board, draw {draw}, lens {model}':26} {camera_px:9.3f} {projector_px:8.3f} {f_error:8.2%} "
-                f"{scores(calibration, scenes, plane_images)}"
+                f"{scores(calibration, scenes, plane_images, rig.focal_px)}"
             )
     print(
         "camera px, proj px: the worst pose's RMS reprojection error; f error: the camera's focal length "
         "(the corners tell f/Z; every depth scales with f); "
         "RMSE and orders (pixels off by more than half a fringe's depth) over both held-out scenes; "
+        "f given: the RMSE with every depth times true / calibrated focal length; "
         "flatness: a plane tilted 20 deg across the view, RMS about its best fit / the images' noise there"
     )
 
