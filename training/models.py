@@ -203,16 +203,17 @@ class CompositeNet(nn.Module):
     fringe periods around the pixel (stride-2 features, dilated convolutions for about 40 pixels of
     context, a pixel shuffle back to full resolution). It learns to read fringes, not scenes: the
     fringe order and the depth follow from physics (fpp_nodes.core.model.CompositeDecoder).
-    Output (B, 4, H, W): carrier numerator, denominator, code numerator, denominator.
+    Output (B, 2 x gratings, H, W): carrier numerator, denominator, code numerator, denominator (and
+    so on for a pattern with more code gratings: training/compare_codes.py).
     """
 
-    def __init__(self, width: int = 16):
+    def __init__(self, width: int = 16, gratings: int = 2):
         super().__init__()
         p = width
         layers = [nn.Conv2d(1, p, 6, stride=2, padding=2), nn.ReLU(inplace=True)]
         for dilation in (1, 2, 4, 2):
             layers += [nn.Conv2d(p, p, 3, padding=dilation, dilation=dilation), nn.ReLU(inplace=True)]
-        self.net = nn.Sequential(*layers, nn.Conv2d(p, 16, 1), nn.PixelShuffle(2))
+        self.net = nn.Sequential(*layers, nn.Conv2d(p, 8 * gratings, 1), nn.PixelShuffle(2))
 
     def forward(self, image):
         return self.net(image)

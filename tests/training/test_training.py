@@ -10,7 +10,12 @@ import pytest
 import torch
 import yaml
 
+from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.model import DepthModel, ModelError
+from fpp_nodes.core.reconstruct import CompositeDecoder
+from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
+from fpp_nodes.core.simulation import Rig
+from training.compare_codes import DESIGNS, margin
 from training.dataset import decode_depth, encode_depth, load_phase_targets, load_sample, split_files, write_set
 from training.export import (
     CONFIDENCE_GRID,
@@ -20,7 +25,7 @@ from training.export import (
     SURFACE_GRID,
     export,
 )
-from training.models import build, layer_counts, pad_to_stride
+from training.models import CompositeNet, build, layer_counts, pad_to_stride
 from training.train import TrainConfig, load_checkpoint, model_from_checkpoint, train
 
 
@@ -312,3 +317,15 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     sure = confidence[np.isfinite(confidence)]
     assert sure.size and sure.min() >= 0 and sure.max() <= 1
     assert np.all(np.isnan(depth[~(confidence >= model.min_confidence)]))
+
+
+def test_the_code_comparison_measures_margins_as_the_decoder_does():
+    """training.compare_codes' margin for the shipped design (half the closest two orders' codes over the
+    working range) agrees with the shipped decoder's own; two codes with 12/24-pixel rows have more
+    than five times it; the network it trains reads three gratings (six channels)."""
+    rig = Rig()
+    decoder = CompositeDecoder(Calibration.load(default_calibration_path()), SURFACE_DEPTH_MM)
+    shipped = margin(DESIGNS["one code (shipped)"], rig)
+    assert shipped == pytest.approx(decoder.min_separation / 2, rel=0.1)
+    assert margin(DESIGNS["two codes, rows 12/24"], rig) > 5 * shipped
+    assert CompositeNet(4, gratings=3)(torch.zeros(1, 1, 32, 32)).shape == (1, 6, 32, 32)

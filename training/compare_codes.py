@@ -1,0 +1,152 @@
+"""Which code for the composite single-shot pattern: the shipped one (the carrier plus one code grating
+telling CODE_ORDERS orders apart) against two code gratings, one telling 6 orders apart and one 36,
+through the same network (training.models.CompositeNet) and the same training budget.
+
+One code telling 36 orders apart leaves every order decision a margin of 0.07 rad, and the network's
+code misses it on textured and dark surfaces: that is where the shipped model's coverage goes. Two codes
+split the decision, each with a margin of about half a radian, at the price of sharing the pattern's
+contrast three ways. What decides is how often each pixel's own codes name the wrong order, measured
+here directly.
+
+Both designs: scenes of the training families with random photometry (training.dataset's composite
+set: its training seeds, and new validation seeds beyond its validation split), the network trained on
+exact targets (each grating's phase from the renderer's projector coordinates, B sin, B cos with the
+surface's brightness as B), then on the validation scenes: the share of pixels whose own codes name
+the wrong order (their errors, together, beyond half the closest two orders' codes: the rig's exact
+geometry, every order pair of the working range) and each grating's RMS phase error. Pixels: lit,
+fringes at least 2% of full scale, 16 px from the border. Held-out families are not used: this chooses
+a design.
+
+    python -m training.compare_codes [--train 300] [--steps 8000]   # about 30 minutes on 2 cores
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+
+from fpp_nodes.core.patterns import CODE_ORDERS, CODE_ROW_PERIOD_PX, COMPOSITE_AMPLITUDE
+from fpp_nodes.core.scenes import SURFACE_DEPTH_MM, make_scene
+from fpp_nodes.core.simulation import Rig, SceneRenderer, random_rig
+from training.dataset import TRAIN_FAMILIES, seed_of
+from training.models import CompositeNet
+from training.train import photometric
+
+# Each grating: (amplitude, orders it tells apart or None for the carrier, row period in projector pixels)
+DESIGNS = {
+    "one code (shipped)": [(COMPOSITE_AMPLITUDE, None, None), (COMPOSITE_AMPLITUDE, CODE_ORDERS, CODE_ROW_PERIOD_PX)],
+    "two codes, rows 8.5/17": [(0.4, None, None), (0.3, 6, 8.5), (0.3, CODE_ORDERS, 17.0)],
+    "two codes, rows 12/24": [(0.4, None, None), (0.3, 6, 12.0), (0.3, CODE_ORDERS, 24.0)],
+}
+CROP, BATCH = 160, 8  # as make composite-model trains
+BORDER, FLOOR = 16, 0.02
+
+
+def phases(design, xp, yp, rig: Rig) -> list[np.ndarray]:
+    """Each grating's phase at projector coordinates: the carrier's 2 pi f x / W; a code's the row phase
+    2 pi y / period plus the carrier's / orders."""
+    carrier = 2 * np.pi * rig.pattern_set().frequencies[-1] * xp / rig.projector_width
+    return [carrier if orders is None else 2 * np.pi * yp / period + carrier / orders for _, orders, period in design]
+
+
+def pattern(design, rig: Rig) -> np.ndarray:
+    """The projector image: the gratings summed about mid-grey, pre-compensated for the projector's gamma."""
+    yp, xp = np.mgrid[: rig.projector_height, : rig.projector_width].astype(np.float64)
+    radiance = 0.5 + 0.5 * sum(a * np.cos(p) for (a, _, _), p in zip(design, phases(design, xp, yp, rig)))
+    return np.round(255 * np.clip(radiance, 0, 1) ** (1 / rig.projector_gamma)).astype(np.uint8)
+
+
+def margin(design, rig: Rig, step: int = 16, depths: int = 240) -> float:
+    """Half of how close two orders of the working range come in all codes together (rad, the root sum of
+    squares of each code's difference; min over a grid of pixels and every pair of depths whole orders
+    apart): a pixel whose codes' errors together exceed it may name the wrong order."""
+    x, y = (a[::step, ::step] for a in rig.camera().rays())
+    codes = [g for g in design if g[1] is not None]
+    samples = []
+    for z in np.linspace(*SURFACE_DEPTH_MM, depths):
+        xp, yp, _ = rig.to_projector(np.stack([x * z, y * z, np.full(x.shape, z)], axis=-1))
+        samples.append(phases([(0, None, None), *codes], xp, yp, rig))
+    carrier, *code = (np.array(a) for a in zip(*samples))
+    closest = np.inf
+    for i in range(0, depths, 2):
+        apart = (carrier - carrier[i]) / (2 * np.pi)
+        whole = (np.abs(apart - np.rint(apart)) < 0.03) & (np.abs(apart) > 0.5)
+        gap = np.sqrt(sum(np.angle(np.exp(1j * (c - c[i]))) ** 2 for c in code))
+        closest = min(closest, float(np.where(whole, gap, np.inf).min()))
+    return closest / 2
+
+
+def scene(design, image_pattern, seed: int, family: str, base: Rig):
+    """(image, each grating's phase, lit, brightness) of one scene with random photometry."""
+    rig = random_rig(np.random.default_rng([seed, 1]), base)
+    renderer = SceneRenderer(rig, make_scene(rig, family, seed))
+    image = renderer.image(image_pattern, 255, np.random.default_rng(seed))
+    xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
+    brightness = renderer.reflect[renderer.crop] * np.float32(0.5 / rig.full_scale)
+    return image, np.stack(phases(design, xp, yp, rig)).astype(np.float32), renderer.lit[renderer.crop], brightness
+
+
+def train(images, targets, lit, gratings: int, steps: int) -> CompositeNet:
+    """The network on random crops with the training set's photometric augmentation."""
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    net = CompositeNet(16, gratings)
+    optimizer = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=1e-4)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, steps)
+    h, w = images.shape[1:]
+    for _ in range(steps):
+        batch = []
+        for _ in range(BATCH):
+            i, r, c = rng.integers(len(images)), rng.integers(h - CROP + 1), rng.integers(w - CROP + 1)
+            crop = (slice(r, r + CROP), slice(c, c + CROP))
+            image, gain = photometric(rng, images[i][crop] / np.float32(255))
+            phase, brightness = targets[0][i][(slice(None), *crop)], targets[1][i][crop] * gain
+            target = np.concatenate([np.stack([brightness * np.sin(p), brightness * np.cos(p)]) for p in phase])
+            batch.append((image[None], target, lit[i][crop]))
+        x, t, m = (torch.from_numpy(np.stack(b)) for b in zip(*batch))
+        loss = 1000.0 * ((net(x) - t) ** 2).sum(dim=1)[m].mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+    return net.eval()
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--train", type=int, default=300, help="training scenes")
+    parser.add_argument("--validation", type=int, default=40, help="validation scenes")
+    parser.add_argument("--steps", type=int, default=8000, help="training steps (batches of 8 crops)")
+    args = parser.parse_args()
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads")
+    base = Rig()
+    print(f"{args.train} training scenes, {args.validation} validation scenes, {args.steps} steps of {BATCH} crops")
+    print(f"{'design':24} {'margin rad':>10} {'own order wrong':>16}  RMS phase error per grating (rad)")
+    for name, design in DESIGNS.items():
+        start, image_pattern = time.time(), pattern(design, base)
+        seeds = [(seed_of("composite", "train", i), TRAIN_FAMILIES[i % 5]) for i in range(args.train)]
+        seeds += [(seed_of("composite", "val", 1000 + i), TRAIN_FAMILIES[i % 5]) for i in range(args.validation)]
+        images, grating_phases, lit, brightness = (
+            np.stack(a) for a in zip(*(scene(design, image_pattern, s, f, base) for s, f in seeds))
+        )
+        n = args.train
+        net = train(images[:n], (grating_phases[:n], brightness[:n]), lit[:n], len(design), args.steps)
+        half_gap, pixels, wrong, squared = margin(design, base), 0, 0, np.zeros(len(design))
+        with torch.no_grad():
+            for i in range(n, len(images)):
+                out = net(torch.from_numpy(images[i] / np.float32(255))[None, None])[0].numpy()
+                errors = np.abs(np.angle(np.exp(1j * (np.arctan2(out[0::2], out[1::2]) - grating_phases[i]))))
+                keep = lit[i] & (brightness[i] >= FLOOR)
+                keep[:BORDER] = keep[-BORDER:] = keep[:, :BORDER] = keep[:, -BORDER:] = False
+                pixels += keep.sum()
+                wrong += np.count_nonzero(keep & (np.sqrt(np.sum(errors[1:] ** 2, axis=0)) > half_gap))
+                squared += np.sum(errors[:, keep] ** 2, axis=1)
+        rms = "  ".join(f"{g}: {np.sqrt(s / pixels):.3f}" for g, s in zip(("carrier", "code", "code 2"), squared))
+        print(f"{name:24} {half_gap:10.3f} {wrong / pixels:16.2%}  {rms}   ({time.time() - start:.0f} s)", flush=True)
+
+
+if __name__ == "__main__":
+    main()
