@@ -14,8 +14,9 @@ exact targets (each grating's phase from the renderer's projector coordinates, B
 surface's brightness as B), then on the validation scenes: the share of pixels whose own codes name
 the wrong order (their errors, together, beyond half the closest two orders' codes: the rig's exact
 geometry, every order pair of the working range) and each grating's RMS phase error. Pixels: lit,
-fringes at least 2% of full scale, 16 px from the border. Held-out families are not used: this chooses
-a design.
+half the surface's brightness (gain x albedo / 2, the shipped carrier's modulation) at least 2% of full
+scale, the same pixels for every design; 16 px from the border. Held-out families are not used: this
+chooses a design.
 
     python -m training.compare_codes [--train 300] [--steps 8000]   # about 30 minutes on 2 cores
 """
