@@ -4,7 +4,7 @@ calibration in it, so that the bag replays and reconstructs on its own.
 Subscribes projector/pattern, camera/image_raw and camera/camera_info as raw CDR (no decoding); with
 outputs:=true also points, depth/image and depth/camera_info, to look at (Foxglove); a replay makes
 those anew. Parameters: output (bag folder, must not exist), storage (mcap | sqlite3), calibration
-(file), outputs (bool).
+(file), outputs (bool). Logs the first message on each topic: from then on that topic is recorded.
 """
 
 from __future__ import annotations
@@ -55,6 +55,8 @@ class Record(Node):
         finally:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
         self.counts[topic] = self.counts.get(topic, 0) + 1
+        if self.counts[topic] == 1:  # matched and flowing: discovery alone does not say so
+            self.get_logger().info(f"first message on {topic}")
 
     def destroy_node(self):
         self.writer.close()
