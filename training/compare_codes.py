@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from fpp_nodes.core.patterns import CODE_ORDERS, CODE_ROW_PERIOD_PX, COMPOSITE_AMPLITUDE
+from fpp_nodes.core.phase import wrap_phase
 from fpp_nodes.core.scenes import SURFACE_DEPTH_MM, make_scene
 from fpp_nodes.core.simulation import Rig, SceneRenderer, random_rig
 from training.dataset import TRAIN_FAMILIES, seed_of
@@ -75,7 +76,7 @@ def margin(design, rig: Rig, step: int = 16, depths: int = 240) -> float:
     for i in range(0, depths, 2):
         apart = (carrier - carrier[i]) / (2 * np.pi)
         whole = (np.abs(apart - np.rint(apart)) < 0.03) & (np.abs(apart) > 0.5)
-        gap = np.sqrt(sum(np.angle(np.exp(1j * (c - c[i]))) ** 2 for c in code))
+        gap = np.sqrt(sum(wrap_phase(c - c[i]) ** 2 for c in code))
         closest = min(closest, float(np.where(whole, gap, np.inf).min()))
     return closest / 2
 
@@ -139,7 +140,7 @@ def main():
         with torch.no_grad():
             for i in range(n, len(images)):
                 out = net(torch.from_numpy(images[i] / np.float32(255))[None, None])[0].numpy()
-                errors = np.abs(np.angle(np.exp(1j * (np.arctan2(out[0::2], out[1::2]) - grating_phases[i]))))
+                errors = np.abs(wrap_phase(np.arctan2(out[0::2], out[1::2]) - grating_phases[i]))
                 keep = lit[i] & (brightness[i] >= FLOOR)
                 keep[:BORDER] = keep[-BORDER:] = keep[:, :BORDER] = keep[:, -BORDER:] = False
                 pixels += keep.sum()
