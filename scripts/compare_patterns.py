@@ -1,12 +1,11 @@
 """Which single-shot pattern: the paper's (the first image of the 100-fringe set) against this sensor's
-composite (the 100-fringe carrier plus a code grating that tells its order), decoded classically
-(Takeda's FTP: the carrier's lobe, and the code's own lobe), on a tilted plane under each condition a
+composite (the 100-fringe carrier plus code gratings that tell its order), decoded classically
+(Takeda's FTP: the carrier's lobe, and each code's own lobe), on a tilted plane under each condition a
 rig meets: dark albedo, texture, defocus, noise, a projector gamma the patterns do not compensate.
 
-Prints first how close the codes of two fringe orders of the working range come for a few designs of
-the code (orders it tells apart, its row period), from the rig's exact geometry; then, per
-condition: the carrier's wrapped-phase error (RMS, rad and mm of depth) for each pattern, the code's
-phase error against its margin (half the closest two orders' codes), and the share of pixels whose
+Prints per condition: the carrier's wrapped-phase error (RMS, rad and mm of depth) for each pattern,
+each code's phase error against the margin (half the closest two orders' codes; training.compare_codes
+compares code designs), and the share of pixels whose
 fringe order is wrong from each pixel's own code and after the composite decoder's neighbourhood vote (NaN where
 unsure). The paper's image has no order to tell: every pixel's order there is a guess.
 
@@ -20,7 +19,6 @@ from dataclasses import replace
 import numpy as np
 
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
-from fpp_nodes.core.patterns import CODE_ORDERS, CODE_ROW_PERIOD_PX
 from fpp_nodes.core.phase import ftp_wrapped_phase
 from fpp_nodes.core.reconstruct import CompositeDecoder, composite_ftp_phases
 from fpp_nodes.core.scenes import SURFACE_DEPTH_MM, plane_scene
@@ -47,27 +45,6 @@ def wrapped_error(measured, exact):
     return np.angle(np.exp(1j * (measured - exact)))
 
 
-def order_separation(rig: Rig, orders: int, row_period_px: float, depth_range_mm=SURFACE_DEPTH_MM, step: int = 8):
-    """How close the codes of two fringe orders in the working range come (rad; min over a grid of
-    pixels), from the rig's exact geometry, for a code telling `orders` apart with rows of
-    row_period_px projector pixels: the margin every order decision has is half of it."""
-    x, y = (a[::step, ::step] for a in rig.camera().rays())
-    f = rig.pattern_set().frequencies[-1]
-    samples = []
-    for z in np.linspace(*depth_range_mm, 300):
-        xp, yp, _ = rig.to_projector(np.stack([x * z, y * z, np.full(x.shape, z)], axis=-1))
-        carrier = 2 * np.pi * f * xp / rig.projector_width
-        samples.append((carrier, 2 * np.pi * yp / row_period_px + carrier / orders))
-    carrier, code = (np.array(a) for a in zip(*samples))
-    closest = np.inf
-    for i in range(0, len(samples), 3):  # the depths whose carrier phase differs by whole orders from this one's
-        apart = (carrier - carrier[i]) / (2 * np.pi)
-        whole = (np.abs(apart - np.rint(apart)) < 0.05) & (np.abs(apart) > 0.5)
-        gap = np.abs(np.angle(np.exp(1j * (code - code[i]))))
-        closest = min(closest, float(np.where(whole, gap, np.inf).min()))
-    return closest
-
-
 def main():
     print(describe({"numpy/opencv": 1}, ("numpy", "cv2")))
     rig = Rig()
@@ -79,21 +56,10 @@ def main():
         f"{span.min():.1f}-{span.max():.1f} "
         "fringe orders of the carrier across the image"
     )
-    print(
-        f"the code's design: the closest two orders of {SURFACE_DEPTH_MM[0]:g}-{SURFACE_DEPTH_MM[1]:g} mm "
-        "(rad, the rig's exact geometry; half of it is every decision's margin)"
-    )
-    print(f"{'orders told apart':>18} {'row period px':>14} {'closest (rad)':>14} {'2 pi / orders':>14}")
-    for orders, period in ((32, 12.8), (36, 12.8), (40, 12.8), (32, 17.0), (36, 17.0), (40, 17.0), (36, 25.6)):
-        print(
-            f"{orders:18d} {period:14.1f} {order_separation(rig, orders, period):14.3f} {2 * np.pi / orders:14.3f}"
-            + ("   (shipped)" if (orders, period) == (CODE_ORDERS, CODE_ROW_PERIOD_PX) else "")
-        )
     calibration = Calibration.load(default_calibration_path())
     composite = calibration.patterns
     decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
-    base = Rig()
-    fx, fy = composite.code_frequencies
+    base, frequencies = Rig(), composite.code_frequencies
     rows = []
     for name, rig, scene in conditions(base):
         renderer = SceneRenderer(rig, scene)
@@ -101,20 +67,20 @@ def main():
         inner = np.zeros(xp.shape, bool)
         inner[BORDER:-BORDER, BORDER:-BORDER] = renderer.lit[renderer.crop][BORDER:-BORDER, BORDER:-BORDER]
         carrier = 2 * np.pi * composite.frequencies[-1] * xp / composite.width
-        code = 2 * np.pi * (fx * xp / composite.width + fy * yp / composite.height)
+        codes = [2 * np.pi * (fx * xp / composite.width + fy * yp / composite.height) for fx, fy in frequencies]
         images = render(rig, scene, composite, np.random.default_rng(1)).images  # the patterns stay the 2.2 set
         mm_per_rad = np.abs(
             calibration.model.depth_per_radian(carrier, *np.meshgrid(np.arange(rig.width), np.arange(rig.height)))
         )
         paper, _ = ftp_wrapped_phase(images[composite.input_index("paper")])
-        phase, code_phase, _ = composite_ftp_phases(images[composite.single_shot_index], calibration)
+        phase, code_phases, _ = composite_ftp_phases(images[composite.single_shot_index], calibration)
         row = [name]
         for measured in (paper, phase):
             e = wrapped_error(measured, carrier)[inner]
             row += [np.sqrt(np.mean(e**2)), np.sqrt(np.mean((e * mm_per_rad[inner]) ** 2))]
-        row.append(np.sqrt(np.mean(wrapped_error(code_phase, code)[inner] ** 2)))
-        out = np.stack([np.sin(phase), np.cos(phase), np.sin(code_phase), np.cos(code_phase)])
-        own = decoder.code_phase(phase.astype(np.float32), code_phase.astype(np.float32))
+        row.append([np.sqrt(np.mean(wrapped_error(m, c)[inner] ** 2)) for m, c in zip(code_phases, codes)])
+        out = np.stack([f(p) for p in (phase, *code_phases) for f in (np.sin, np.cos)])
+        own = decoder.code_phase(phase.astype(np.float32), [c.astype(np.float32) for c in code_phases])
         truth_order = np.rint((carrier - phase) / (2 * np.pi))
         row.append(np.mean((np.rint((own - phase) / (2 * np.pi)) != truth_order)[inner]))
         depth, _ = decoder(out, 0.5)
@@ -123,15 +89,17 @@ def main():
         rows.append(row)
     print(
         f"\nFTP on one image of each pattern, a plane at 1150 mm tilted 20/10 deg; every order decision's margin: "
-        f"{decoder.min_separation / 2:.3f} rad (half the closest two orders' codes, this calibration)"
+        f"{decoder.min_separation / 2:.3f} rad (half the closest two orders' codes, root sum of squares over "
+        "the codes, this calibration)"
     )
     print(
-        f"{'condition':42} {'paper: carrier rad  mm':>22} {'composite: carrier rad  mm':>27} {'code rad':>9} "
+        f"{'condition':42} {'paper: carrier rad  mm':>22} {'composite: carrier rad  mm':>27} {'codes rad':>12} "
         f"{'own order wrong':>16} {'voted >1mm':>11} {'cover':>6}"
     )
     for name, pr, pmm, cr, cmm, code_rms, own_wrong, voted_wrong, cover in rows:
+        code_rms = " ".join(f"{c:.3f}" for c in code_rms)
         print(
-            f"{name:42} {pr:15.3f} {pmm:6.2f} {cr:20.3f} {cmm:6.2f} {code_rms:9.3f} {own_wrong:16.1%} "
+            f"{name:42} {pr:15.3f} {pmm:6.2f} {cr:20.3f} {cmm:6.2f} {code_rms:>12} {own_wrong:16.1%} "
             f"{voted_wrong:11.2%} {cover:6.1%}"
         )
     print(

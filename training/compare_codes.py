@@ -1,11 +1,11 @@
-"""Which code for the composite single-shot pattern: the shipped one (the carrier plus one code grating
-telling CODE_ORDERS orders apart) against two code gratings, one telling 6 orders apart and one 36,
-through the same network (training.models.CompositeNet) and the same training budget.
+"""Which code for the composite single-shot pattern: one code grating telling 36 orders apart (the
+sensor's first composite) against two, one telling 6 orders apart and one 36 (patterns.COMPOSITE_CODES,
+shipped), through the same network (training.models.CompositeNet) and the same training budget.
 
 One code telling 36 orders apart leaves every order decision a margin of 0.07 rad, and the network's
-code misses it on textured and dark surfaces: that is where the shipped model's coverage goes. Two codes
-split the decision, each with a margin of about half a radian, at the price of sharing the pattern's
-contrast three ways. What decides is how often each pixel's own codes name the wrong order, measured
+code misses it on textured and dark surfaces: that is where the first composite model's coverage went.
+Two codes split the decision, each with a margin of about half a radian, at the price of sharing the
+pattern's contrast three ways. What decides is how often each pixel's own codes name the wrong order, measured
 here directly.
 
 Both designs: scenes of the training families with random photometry (training.dataset's composite
@@ -29,7 +29,7 @@ import time
 import numpy as np
 import torch
 
-from fpp_nodes.core.patterns import CODE_ORDERS, CODE_ROW_PERIOD_PX, COMPOSITE_AMPLITUDE
+from fpp_nodes.core.patterns import CARRIER_AMPLITUDE, CODE_AMPLITUDE, COMPOSITE_CODES
 from fpp_nodes.core.phase import wrap_phase
 from fpp_nodes.core.scenes import SURFACE_DEPTH_MM, make_scene
 from fpp_nodes.core.simulation import Rig, SceneRenderer, random_rig
@@ -39,9 +39,9 @@ from training.train import photometric
 
 # Each grating: (amplitude, orders it tells apart or None for the carrier, row period in projector pixels)
 DESIGNS = {
-    "one code (shipped)": [(COMPOSITE_AMPLITUDE, None, None), (COMPOSITE_AMPLITUDE, CODE_ORDERS, CODE_ROW_PERIOD_PX)],
-    "two codes, rows 8.5/17": [(0.4, None, None), (0.3, 6, 8.5), (0.3, CODE_ORDERS, 17.0)],
-    "two codes, rows 12/24": [(0.4, None, None), (0.3, 6, 12.0), (0.3, CODE_ORDERS, 24.0)],
+    "one code (the first)": [(0.5, None, None), (0.5, 36, 17.0)],
+    "two codes, rows 8.5/17": [(0.4, None, None), (0.3, 6, 8.5), (0.3, 36, 17.0)],
+    "two codes, rows 12/24": [(CARRIER_AMPLITUDE, None, None), *((CODE_AMPLITUDE, k, p) for k, p in COMPOSITE_CODES)],
 }
 CROP, BATCH = 160, 8  # as make composite-model trains
 BORDER, FLOOR = 16, 0.02

@@ -17,7 +17,7 @@ On disk (a folder per set and split, one file per sample):
      families/surface/composite: phase  float32 (H, W)     multi-shot absolute phase, NaN invalid
                                  fringe float16 (2, H, W)  its numerator and denominator
                                  family str                the scene family
-                 composite (and bags): code   float16 (2, H, W)  the code grating (phase_targets)
+                 composite (and bags): code   float16 (2 x codes, H, W)  the code gratings (phase_targets)
 
 The uint16 encoding holds 1000.01-1655.35 mm in 0.01 mm steps (rounding adds 0.003 mm RMS).
 """
@@ -34,7 +34,7 @@ import yaml
 from tqdm import tqdm
 
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
-from fpp_nodes.core.patterns import CODE_ORDERS
+from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.phase import phase_sums
 from fpp_nodes.core.reconstruct import PspReconstructor, full_scale
 from fpp_nodes.core.scenes import make_scene
@@ -62,7 +62,7 @@ SETS = {
 TRAIN_FAMILIES = ("bust", "freeform", "blocks", "planes", "floating")
 HELD_OUT_FAMILIES = ("spheres", "thin", "objects")
 DEPTH_OFFSET_MM, DEPTH_STEP_MM = 1000.0, 0.01
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: the composite has two code gratings
 
 
 def encode_depth(depth_mm: np.ndarray) -> np.ndarray:
@@ -148,9 +148,9 @@ def phase_targets(images: np.ndarray, rec, calibration: Calibration) -> dict:
     """What the phase-aware networks learn, from a sequence and its multi-shot reconstruction:
     `phase`, the absolute phase of the highest frequency (float32, NaN where untrusted); `fringe`, its
     numerator and denominator (B sin phi, B cos phi over full scale, float16, (2, H, W)); with the
-    composite also `code`, its code grating as the multi-shot path sees it: B/2 sin psi, B/2 cos psi,
-    psi = the row phase at the labelled depth plus the absolute carrier phase / CODE_ORDERS (each of
-    the composite's gratings has half a phase-shift pattern's amplitude)."""
+    composite also `code`, its code gratings as the multi-shot path sees them: B sin psi_i, B cos psi_i
+    for each, psi_i = its row phase at the labelled depth plus the absolute carrier phase / K_i (the
+    same B as the carrier's, so every grating's phase weighs the same in the loss)."""
     patterns = calibration.patterns
     top = images[patterns.top_frequency_frames]
     y, x = phase_sums(top)
@@ -161,9 +161,12 @@ def phase_targets(images: np.ndarray, rec, calibration: Calibration) -> dict:
     }
     if patterns.single_shot == "composite":
         u, v = calibration.camera.ideal_pixels()
-        code = calibration.code_row_phase_at_depth(rec.depth_mm, u, v) + rec.phase / CODE_ORDERS
-        half = 0.5 * np.hypot(y, x) * scale
-        targets["code"] = np.stack([half * np.sin(code), half * np.cos(code)]).astype(np.float16)
+        b = np.hypot(y, x) * scale
+        codes = [
+            calibration.code_row_phase_at_depth(i, rec.depth_mm, u, v) + rec.phase / orders
+            for i, (orders, _) in enumerate(COMPOSITE_CODES)
+        ]
+        targets["code"] = np.stack([b * f(code) for code in codes for f in (np.sin, np.cos)]).astype(np.float16)
     return targets
 
 

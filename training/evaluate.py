@@ -61,7 +61,7 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     models = load_models(model_paths)
     info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
     calibration = Calibration.from_dict(info["calibration"])
-    if calibration.code_model is not None:  # the classical baseline on our pattern
+    if calibration.code_models:  # the classical baseline on our pattern
         decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
         models.append(("FTP (composite)", lambda image: reconstruct_ftp(image, calibration, decoder=decoder).depth_mm))
     models.append(("multi-shot (the label)", None))  # what all the sequence's images measure: the reference

@@ -201,7 +201,7 @@ def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | No
             if cfg.arch == "phase"
             else {
                 "name": output,
-                "channels": "carrier numerator, denominator, code numerator, denominator (full-scale units)",
+                "channels": "carrier numerator, denominator, then each code grating's (full-scale units)",
             }
             if cfg.arch == "composite"
             else {"name": output, "units": "mm along the camera's optical axis"}

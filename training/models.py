@@ -19,6 +19,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from fpp_nodes.core.patterns import COMPOSITE_CODES
+
 
 class DoubleConv(nn.Sequential):
     def __init__(self, cin: int, cout: int, dropout: float = 0.0):
@@ -199,15 +201,15 @@ class PhaseOrderNet(nn.Module):
 
 class CompositeNet(nn.Module):
     """The composite pattern's fringe analyser: from one image, the numerators and denominators of the
-    carrier's and the code grating's phases (B sin, B cos in full-scale units), each from the few
+    carrier's and the code gratings' phases (B sin, B cos in full-scale units), each from the few
     fringe periods around the pixel (stride-2 features, dilated convolutions for about 40 pixels of
     context, a pixel shuffle back to full resolution). It learns to read fringes, not scenes: the
     fringe order and the depth follow from physics (fpp_nodes.core.model.CompositeDecoder).
-    Output (B, 2 x gratings, H, W): carrier numerator, denominator, code numerator, denominator (and
-    so on for a pattern with more code gratings: training/compare_codes.py).
+    Output (B, 2 x gratings, H, W): carrier numerator, denominator, then each code's (the composite's
+    gratings: its carrier and patterns.COMPOSITE_CODES; training/compare_codes.py tries others).
     """
 
-    def __init__(self, width: int = 16, gratings: int = 2):
+    def __init__(self, width: int = 16, gratings: int = 1 + len(COMPOSITE_CODES)):
         super().__init__()
         p = width
         layers = [nn.Conv2d(1, p, 6, stride=2, padding=2), nn.ReLU(inplace=True)]

@@ -32,6 +32,7 @@ from tqdm import tqdm
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import PhaseOrderDecoder, network_input
+from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
 from fpp_nodes.pictures import depth_colours
@@ -158,7 +159,7 @@ class FringePhaseSet(Dataset):
 
 
 class CompositeSet(Dataset):
-    """(image [0, 1], carrier and code numerators/denominators (4, H, W), label mm) tensors for the
+    """(image [0, 1], carrier and codes' numerators/denominators (2 + 2 x codes, H, W), label mm) tensors for the
     composite network, random crops of crop pixels (0: whole images) when training."""
 
     def __init__(self, files, augment: bool = False, crop: int = 0, seed: int = 0):
@@ -173,6 +174,8 @@ class CompositeSet(Dataset):
         with np.load(f, allow_pickle=False) as z:
             if "code" not in z:
                 raise ValueError(f"{f} has no code targets (make a set with the composite pattern: --set composite)")
+            if len(z["code"]) != 2 * len(COMPOSITE_CODES):
+                raise ValueError(f"{f} was made for an earlier composite pattern ({len(z['code']) // 2} code gratings)")
             return image, np.concatenate([z["fringe"], z["code"]]), label
 
     def __len__(self):  # with crops, an epoch still covers about every pixel once
@@ -192,9 +195,6 @@ class CompositeSet(Dataset):
         return torch.from_numpy(image)[None], torch.from_numpy(targets), torch.from_numpy(label)[None]
 
 
-COMPOSITE_WEIGHTS = (1.0, 1.0, 4.0, 4.0)  # the code grating has half the carrier's amplitude: equal weight in phase
-
-
 def reseed_worker(_):
     """Each data-loading process draws its own crops and augmentation (a forked copy of the set's
     generator would repeat the others')."""
@@ -203,10 +203,9 @@ def reseed_worker(_):
 
 
 def composite_loss(pred, targets):
-    """Squared error of the four numerators/denominators over the pixels whose label is trusted."""
+    """Squared error of the numerators/denominators over the pixels whose label is trusted."""
     valid = torch.isfinite(targets).all(dim=1)
-    weights = torch.tensor(COMPOSITE_WEIGHTS, device=pred.device)[None, :, None, None]
-    return 1000.0 * (weights * (pred - targets.nan_to_num()) ** 2).sum(dim=1)[valid].mean()
+    return 1000.0 * ((pred - targets.nan_to_num()) ** 2).sum(dim=1)[valid].mean()
 
 
 LOG_SIGMA_RANGE = (np.log(0.01), np.log(30.0))  # orders

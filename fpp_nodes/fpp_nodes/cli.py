@@ -202,7 +202,7 @@ def _reconstruct(
             quality,
             np.full(depth.shape, np.nan, np.float32),
         )
-    decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM) if calibration.code_model is not None else None
+    decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM) if calibration.code_models else None
     return reconstruct_ftp(images[index], calibration, limits, decoder)
 
 

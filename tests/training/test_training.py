@@ -321,11 +321,11 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
 
 def test_the_code_comparison_measures_margins_as_the_decoder_does():
     """training.compare_codes' margin for the shipped design (half the closest two orders' codes over the
-    working range) agrees with the shipped decoder's own; two codes with 12/24-pixel rows have more
-    than five times it; the network it trains reads three gratings (six channels)."""
+    working range) agrees with the shipped decoder's own; the first composite's one code had less than
+    a fifth of it; the network reads the shipped pattern's three gratings (six channels)."""
     rig = Rig()
     decoder = CompositeDecoder(Calibration.load(default_calibration_path()), SURFACE_DEPTH_MM)
-    shipped = margin(DESIGNS["one code (shipped)"], rig)
+    shipped = margin(DESIGNS["two codes, rows 12/24"], rig)
     assert shipped == pytest.approx(decoder.min_separation / 2, rel=0.1)
-    assert margin(DESIGNS["two codes, rows 12/24"], rig) > 5 * shipped
-    assert CompositeNet(4, gratings=3)(torch.zeros(1, 1, 32, 32)).shape == (1, 6, 32, 32)
+    assert margin(DESIGNS["one code (the first)"], rig) < shipped / 5
+    assert CompositeNet(4)(torch.zeros(1, 1, 32, 32)).shape == (1, 6, 32, 32)

@@ -286,21 +286,21 @@ def calibrate_from_board(
         depth = float((cv2.Rodrigues(rvecs[i])[0] @ board.centre() + tvecs[i].ravel())[2])
         reports.append(PoseReport(pose.name, depth, _rms(cam_err), _rms(proj - projector_points[i]), len(objects[i])))
     depths = [r.depth_mm for r in reports]
-    model, code_model, fit_mm = model_from_geometry(
+    model, code_models, fit_mm = model_from_geometry(
         camera, patterns, rotation, translation, k_proj, d_proj, (min(depths), max(depths))
     )
     reference = float(np.median(depths)) if reference_depth_mm is None else float(reference_depth_mm)
     report = BoardReport(reports, _intrinsics(k_proj, d_proj, projector_size), rotation, translation.ravel(), fit_mm)
-    return Calibration(camera, model, patterns, reference, code_model), report
+    return Calibration(camera, model, patterns, reference, code_models), report
 
 
 def model_from_geometry(camera, patterns, rotation, translation, k_proj, d_proj, depth_range_mm, step: int = 4):
-    """The rational phase-to-depth model (and, with the composite pattern, its code model, and the
+    """The rational phase-to-depth model (and, with the composite pattern, its code models; and the
     model's RMS depth difference from exact triangulation over the samples) fitted to
     virtual planes square to the camera across depth_range_mm widened by DEPTH_MARGIN_MM: each
     sampled pixel's ray meets each plane, the projector (rotation, translation from the camera's
     frame; intrinsics, distortion) sees the meeting point at (xp, yp), the carrier's phase there is
-    2 pi f_max xp / W and the code's row phase 2 pi g yp / H (patterns.composite_pattern)."""
+    2 pi f_max xp / W and each code's row phase 2 pi fy yp / H (patterns.composite_pattern)."""
     x, y = (a[::step, ::step].ravel() for a in camera.rays())
     u, v = (np.broadcast_to(a, camera.shape)[::step, ::step].ravel() for a in camera.ideal_pixels())
     near, far = depth_range_mm[0] - DEPTH_MARGIN_MM, depth_range_mm[1] + DEPTH_MARGIN_MM
@@ -310,12 +310,12 @@ def model_from_geometry(camera, patterns, rotation, translation, k_proj, d_proj,
         xp, yp = cv2.projectPoints(points, cv2.Rodrigues(rotation)[0], translation, k_proj, d_proj)[0].reshape(-1, 2).T
         lit = (xp >= 0) & (xp <= patterns.width - 1) & (yp >= 0) & (yp <= patterns.height - 1)
         phase = TWO_PI * patterns.frequencies[-1] * xp / patterns.width
-        row = TWO_PI * patterns.code_frequencies[1] * yp / patterns.height
-        samples.append((u[lit], v[lit], phase[lit], row[lit] + phase[lit], np.full(lit.sum(), z)))
+        chi = [TWO_PI * fy * yp[lit] / patterns.height + phase[lit] for _, fy in patterns.code_frequencies]
+        samples.append((u[lit], v[lit], phase[lit], np.full(lit.sum(), z), *chi))
     if sum(len(s[0]) for s in samples) < 1000:
         raise CalibrationError("the calibrated projector lights almost none of the camera's view: check the poses")
-    u, v, phase, chi, depth = (np.concatenate(parts) for parts in zip(*samples))
+    u, v, phase, depth, *chis = (np.concatenate(parts) for parts in zip(*samples))
     model = fit_rational_model(u, v, phase, depth)
-    code_model = fit_rational_model(u, v, chi, depth) if patterns.single_shot == "composite" else None
+    code_models = [fit_rational_model(u, v, chi, depth) for chi in chis] if patterns.single_shot == "composite" else []
     fit_mm = float(np.sqrt(np.mean((model.depth(phase, u, v) - depth) ** 2)))
-    return model, code_model, fit_mm
+    return model, code_models, fit_mm

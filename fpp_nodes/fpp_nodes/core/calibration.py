@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 import yaml
 
-from .patterns import PatternError, PatternSet
+from .patterns import COMPOSITE_CODES, PatternError, PatternSet
 
 TERMS = ("1", "phi", "u", "u*phi", "v", "v*phi", "u^2", "u^2*phi", "v^2", "v^2*phi", "u*v", "u*v*phi")
 FORMAT_NAME = "fpp_calibration"
@@ -244,23 +244,25 @@ def _float32_rays(*camera) -> tuple[np.ndarray, np.ndarray]:
 @dataclass
 class Calibration:
     """Everything needed to turn a fringe sequence into depth: camera, model, pattern set; with the
-    composite single-shot pattern also code_model, which tells the code grating's row phase (its phase
-    less the carrier's absolute phase / CODE_ORDERS) at any depth: that row phase plus the carrier's
-    phase is the phase of a grating tilted across the baseline, so the same rational form holds it
-    as well conditioned as the carrier (the row phase alone hardly moves with depth, and a fit of it
-    alone amplifies noise). See code_row_phase_at_depth."""
+    composite single-shot pattern also code_models, one per code grating (patterns.COMPOSITE_CODES),
+    each telling that grating's row phase (its phase less the carrier's absolute phase / K) at any
+    depth: that row phase plus the carrier's phase is the phase of a grating tilted across the
+    baseline, so the same rational form holds it as well conditioned as the carrier (the row phase
+    alone hardly moves with depth, and a fit of it alone amplifies noise). See code_row_phase_at_depth."""
 
     camera: CameraIntrinsics
     model: RationalModel
     patterns: PatternSet
     reference_depth_mm: float  # where the background sits; FTP uses it to choose the global fringe order
-    code_model: RationalModel | None = None
+    code_models: tuple[RationalModel, ...] = ()
 
     def __post_init__(self):
-        if (self.patterns.single_shot == "composite") != (self.code_model is not None):
+        self.code_models = tuple(self.code_models)
+        codes = len(COMPOSITE_CODES) if self.patterns.single_shot == "composite" else 0
+        if len(self.code_models) != codes:
             raise CalibrationError(
-                "a calibration has a code model exactly when its patterns have the composite "
-                f"single-shot frame (single_shot is {self.patterns.single_shot!r})"
+                f"a calibration of a {self.patterns.single_shot!r} single-shot frame has {codes} code models, "
+                f"this one has {len(self.code_models)}"
             )
 
     def with_papers_single_shot(self) -> Calibration:
@@ -269,9 +271,9 @@ class Calibration:
             self.camera, self.model, replace(self.patterns, single_shot="paper"), self.reference_depth_mm
         )
 
-    def code_row_phase_at_depth(self, depth, u, v):
-        """The code grating's row phase a pixel sees at a depth (composite calibrations only)."""
-        return self.code_model.phase_at_depth(depth, u, v) - self.model.phase_at_depth(depth, u, v)
+    def code_row_phase_at_depth(self, code: int, depth, u, v):
+        """Code grating number code's row phase a pixel sees at a depth (composite calibrations only)."""
+        return self.code_models[code].phase_at_depth(depth, u, v) - self.model.phase_at_depth(depth, u, v)
 
     def to_dict(self) -> dict:
         return {
@@ -283,8 +285,8 @@ class Calibration:
             "patterns": self.patterns.to_dict(),
             "reference_depth_mm": float(self.reference_depth_mm),
             **(
-                {"code_model": {"c": self.code_model.c.tolist(), "d": self.code_model.d.tolist()}}
-                if self.code_model is not None
+                {"code_models": [{"c": m.c.tolist(), "d": m.d.tolist()} for m in self.code_models]}
+                if self.code_models
                 else {}
             ),
         }
@@ -302,19 +304,24 @@ class Calibration:
         missing = [k for k in ("camera", "model", "patterns", "reference_depth_mm") if k not in d]
         if missing:
             raise CalibrationError(f"calibration is missing {', '.join(missing)}")
+        if "code_model" in d:
+            raise CalibrationError(
+                "calibration made for an earlier composite pattern (one code grating): calibrate again "
+                "(fpp calibrate) with this version's patterns"
+            )
         try:
             camera = CameraIntrinsics.from_dict(d["camera"])
             model = RationalModel(d["model"]["c"], d["model"]["d"])
             patterns = PatternSet.from_dict(d["patterns"])
             reference = float(d["reference_depth_mm"])
-            code_model = RationalModel(d["code_model"]["c"], d["code_model"]["d"]) if "code_model" in d else None
+            code_models = [RationalModel(m["c"], m["d"]) for m in d.get("code_models", [])]
         except KeyError as e:
             raise CalibrationError(f"calibration is missing {e.args[0]!r}") from None
         except PatternError as e:
             raise CalibrationError(str(e)) from None
         except (TypeError, ValueError) as e:
             raise CalibrationError(f"calibration has a malformed value: {e}") from None
-        return cls(camera, model, patterns, reference, code_model)
+        return cls(camera, model, patterns, reference, code_models)
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.to_dict(), sort_keys=False)

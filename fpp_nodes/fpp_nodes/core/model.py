@@ -15,7 +15,7 @@ import numpy as np
 import yaml
 
 from .calibration import Calibration
-from .patterns import PatternError, PatternSet
+from .patterns import COMPOSITE_CODES, PatternError, PatternSet
 from .reconstruct import CompositeDecoder, QualityLimits, depth_terms, drop_flying_pixels, full_scale
 
 STRIDE = 32
@@ -104,6 +104,12 @@ class DepthModel:
                 ) from None
             if self.downsample != 1:
                 raise ModelError(f"model card {card_path}: a phase-aware model runs at full resolution")
+            channels, expected = self.session.get_outputs()[0].shape[1], 2 + 2 * len(COMPOSITE_CODES)
+            if self.output == "fringe_phases" and channels != expected:
+                raise ModelError(
+                    f"model {path} gives {channels} channels: it was trained for another composite pattern "
+                    f"(this one's carrier and {len(COMPOSITE_CODES)} code gratings give {expected})"
+                )
 
     def check_patterns(self, patterns: PatternSet) -> None:
         """A model reads one kind of single-shot frame (its card's pattern set): say so if the rig shows

@@ -8,14 +8,15 @@ height, f the number of fringes across the pattern, N the number of phase-shift 
 The single-shot image is either the paper's (the first step of the highest frequency, which carries
 no fringe order) or this sensor's composite, shown as one more frame after the phase-shift set:
 
-    I(x, y) = I_0 [1 + a cos(phi) + a cos(psi)],   psi = 2 pi (f_max x / (K W) + g y / H)
+    I(x, y) = I_0 [1 + a cos(phi) + b sum_i cos(psi_i)],   psi_i = 2 pi (f_max x / (K_i W) + y / P_i)
 
-the highest-frequency carrier plus a code grating whose phase grows by 2 pi / K per carrier fringe
-across the projector (K = CODE_ORDERS) and which is nearly horizontal (g fringes down the pattern),
-so its spectral lobe sits far from the carrier's and from the albedo's. A camera pixel sees the
-projector row y at almost the same place at every depth (the baseline is horizontal), so once y is
-known from the calibration, psi tells the carrier's fringe order modulo K. K orders span the whole
-working range, so the order is absolute.
+the highest-frequency carrier plus code gratings, each of whose phase grows by 2 pi / K_i per carrier
+fringe across the projector and which are nearly horizontal (rows of P_i projector pixels), so their
+spectral lobes sit far from the carrier's and from the albedo's. A camera pixel sees the projector row y
+at almost the same place at every depth (the baseline is horizontal), so once y is known from the
+calibration, psi_i tells the carrier's fringe order modulo K_i. The coarse code (K = 36 orders, more
+than the working range spans) says roughly which order, the fine one (K = 6) which of the few nearby:
+each decision keeps a margin of about half a radian (reconstruct.CompositeDecoder).
 """
 
 from __future__ import annotations
@@ -25,14 +26,15 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 SINGLE_SHOT_KINDS = ("composite", "paper")
-# The code's two design numbers (measured in the README, "The composite pattern"): a camera pixel sees a
-# projector row that drifts with depth, more the finer the code's rows, which brings the orders' codes
-# closer; 36 orders and 17-pixel rows keep every two orders of the working range (28.4 orders, 1000-1350
-# mm) at least 0.13 rad apart in the default rig, with the code's lobe far from the albedo's.
-CODE_ORDERS = 36  # carrier fringe orders the code tells apart
-CODE_ROW_PERIOD_PX = 17.0  # the code grating's period down the projector, pixels
-COMPOSITE_AMPLITUDE = 0.5  # a of each grating, so the composite spans 0 .. 2 I_0: each has half the contrast of a
-# phase-shift pattern
+# The composite's codes, (orders K each tells apart, row period P in projector pixels), fine to coarse,
+# and the gratings' amplitudes (a for the carrier, b for each code; a + 2 b = 1 spans 0 .. 2 I_0). Chosen
+# with python -m training.compare_codes on validation scenes (docs/single-shot.md): one code telling 36
+# orders apart left a margin of 0.07 rad and its own codes named the wrong order on 25% of the pixels;
+# these two leave 0.47 rad and 2.7%, for 13% more carrier phase noise. Rows finer than 12/24 pixels drift
+# too far with depth (a camera pixel sees another projector row), coarser ones bring the lobes near the
+# albedo's.
+COMPOSITE_CODES = ((6, 12.0), (36, 24.0))
+CARRIER_AMPLITUDE, CODE_AMPLITUDE = 0.4, 0.3
 
 
 class PatternError(ValueError):
@@ -99,10 +101,9 @@ class PatternSet:
         return self.phase_shift_count
 
     @property
-    def code_frequencies(self) -> tuple[float, float]:
-        """The composite code grating's fringes across the width and down the height (f_max / K, g),
-        g = height / CODE_ROW_PERIOD_PX."""
-        return self.frequencies[-1] / CODE_ORDERS, self.height / CODE_ROW_PERIOD_PX
+    def code_frequencies(self) -> list[tuple[float, float]]:
+        """Each composite code grating's fringes across the width and down the height (f_max / K, H / P)."""
+        return [(self.frequencies[-1] / orders, self.height / period) for orders, period in COMPOSITE_CODES]
 
     def shifts(self) -> np.ndarray:
         """delta_j = 2 pi j / N for j = 0 .. N-1."""
@@ -174,13 +175,11 @@ def pattern_dtype(p: PatternSet):
 
 def composite_pattern(p: PatternSet) -> np.ndarray:
     """The composite single-shot pattern (module docstring), height x width, quantized like the others."""
-    fx, fy = p.code_frequencies
-    x = np.arange(p.width, dtype=np.float64)[None, :]
-    y = np.arange(p.height, dtype=np.float64)[:, None]
-    radiance = 0.5 + 0.5 * COMPOSITE_AMPLITUDE * (
-        np.cos(2.0 * np.pi * p.frequencies[-1] * x / p.width)
-        + np.cos(2.0 * np.pi * (fx * x / p.width + fy * y / p.height))
-    )
+    x = np.arange(p.width, dtype=np.float64)[None, :] / p.width
+    y = np.arange(p.height, dtype=np.float64)[:, None] / p.height
+    radiance = 0.5 + 0.5 * CARRIER_AMPLITUDE * np.cos(2.0 * np.pi * p.frequencies[-1] * x)
+    for fx, fy in p.code_frequencies:
+        radiance = radiance + 0.5 * CODE_AMPLITUDE * np.cos(2.0 * np.pi * (fx * x + fy * y))
     return np.round(p.max_value * radiance ** (1.0 / p.gamma)).astype(pattern_dtype(p))
 
 

@@ -217,12 +217,29 @@ def ftp_wrapped_phase(
     return np.mod(np.angle(analytic), TWO_PI), 2.0 * np.abs(analytic)
 
 
-def ftp_code_phase(image: np.ndarray, band: float = 0.5, centre: tuple[float, float] | None = None):
-    """The composite pattern's code grating by FTP: the strongest spectral lobe at least 4 cycles down
-    the image (the carrier's lobe and the albedo's sit near zero there), kept with a Hann window of
-    radius band x its distance from DC (centre, cycles per image width and height, where known from the
-    calibration, replaces the search). Returns (wrapped phase in [0, 2 pi), lobe amplitude). Exact on
-    smooth surfaces (a plane: about 0.002 rad), which is what the calibration needs."""
+def code_lobe_centres(image: np.ndarray, count: int) -> list[tuple[float, float]]:
+    """Where the composite's count code gratings sit in an image's spectrum (cycles per image width and
+    height): the count strongest lobes at least 4 cycles down the image (the carrier's lobe and the
+    albedo's sit near zero there), finest rows (most cycles down) first, as patterns.COMPOSITE_CODES."""
+    img = np.asarray(image, np.float64)
+    h, w = img.shape
+    power = np.abs(np.fft.fft2(img - img.mean()))
+    fx = (np.fft.fftfreq(w) * w)[None, :]
+    fy = (np.fft.fftfreq(h) * h)[:, None]
+    power[np.broadcast_to(fy < 4.0, power.shape)] = 0
+    centres = []
+    for _ in range(count):
+        row, col = np.unravel_index(np.argmax(power), power.shape)
+        centres.append((float(fx[0, col]), float(fy[row, 0])))
+        power[np.hypot(fx - centres[-1][0], fy - centres[-1][1]) < 0.25 * np.hypot(*centres[-1])] = 0
+    return sorted(centres, key=lambda c: -c[1])
+
+
+def ftp_code_phases(image: np.ndarray, centres: list[tuple[float, float]]) -> list[np.ndarray]:
+    """The composite's code gratings by FTP: each spectral lobe at its centre (cycles per image width
+    and height, from code_lobe_centres or the calibration), kept with a Hann window that reaches
+    halfway to the nearest other lobe or to DC (the albedo's). Returns each wrapped phase in
+    [0, 2 pi). Exact on smooth surfaces (a plane: about 0.003 rad), which is what the calibration needs."""
     img = np.asarray(image, np.float64)
     if img.ndim != 2 or min(img.shape) < 16:
         raise PhaseError(f"FTP needs one 2-D image of at least 16x16 pixels, got shape {img.shape}")
@@ -230,13 +247,10 @@ def ftp_code_phase(image: np.ndarray, band: float = 0.5, centre: tuple[float, fl
     spectrum = np.fft.fft2(img - img.mean())
     fx = (np.fft.fftfreq(w) * w)[None, :]
     fy = (np.fft.fftfreq(h) * h)[:, None]
-    if centre is None:
-        power = np.where(fy >= 4.0, np.abs(spectrum), 0.0)
-        peak = np.unravel_index(np.argmax(power), power.shape)
-        centre = fx[0, peak[1]], fy[peak[0], 0]
-    cx, cy = centre
-    radius = band * np.hypot(cx, cy)
-    r = np.hypot(fx - cx, fy - cy)
-    window = np.where(r < radius, 0.5 * (1 + np.cos(np.pi * r / radius)), 0.0)
-    analytic = np.fft.ifft2(spectrum * window)
-    return np.mod(np.angle(analytic), TWO_PI), 2.0 * np.abs(analytic)
+    phases = []
+    for cx, cy in centres:
+        radius = 0.5 * min(np.hypot(cx - ox, cy - oy) for ox, oy in [(0.0, 0.0), *centres] if (ox, oy) != (cx, cy))
+        r = np.hypot(fx - cx, fy - cy)
+        window = np.where(r < radius, 0.5 * (1 + np.cos(np.pi * r / radius)), 0.0)
+        phases.append(np.mod(np.angle(np.fft.ifft2(spectrum * window)), TWO_PI))
+    return phases

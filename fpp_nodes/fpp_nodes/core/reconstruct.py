@@ -10,11 +10,11 @@ import cv2
 import numpy as np
 
 from .calibration import Calibration, back_project
-from .patterns import CODE_ORDERS, PatternSet
+from .patterns import COMPOSITE_CODES, PatternSet
 from .phase import (
     TWO_PI,
     PhaseError,
-    ftp_code_phase,
+    ftp_code_phases,
     ftp_wrapped_phase,
     phase_and_modulation,
     phase_noise,
@@ -232,16 +232,19 @@ VOTE_WINDOW = 9
 
 
 class CompositeDecoder:
-    """The composite pattern's two phases -> depth, for a calibration with a code model.
+    """The composite pattern's phases (the carrier's and each code grating's) -> depth, for a
+    calibration with code models.
 
-    Each pixel's carrier order is one of CODE_ORDERS consecutive orders that span the working range
-    (depth_range_mm, with equal slack at both ends); the code phase says which: it is the row phase
-    plus the absolute carrier phase / CODE_ORDERS, so each candidate order predicts it about 2 pi /
-    CODE_ORDERS from the next. Across the candidates the row phase drifts (the projector row a pixel
-    sees moves with depth) almost linearly in the carrier phase: fitted so per pixel (within 1e-3 rad
-    in the default rig), each pixel's order follows in closed form (code_phase).
+    Each pixel's carrier order is one of K consecutive orders that span the working range
+    (depth_range_mm, with equal slack at both ends; K the coarsest code's orders). A code's phase is
+    its row phase plus the absolute carrier phase / K_i, so each candidate order predicts it about
+    2 pi / K_i from the next. Across the candidates the row phase drifts (the projector row a pixel
+    sees moves with depth) almost linearly in the carrier phase: fitted so per pixel (within a few
+    1e-3 rad in the default rig), each pixel's order follows in closed form (code_phase), coarse code
+    first, as temporal unwrapping does with frequencies.
     min_separation is how close the codes of two orders of the working range come on this rig (rad,
-    over a grid of pixels): the margin every decision has is half of it.
+    the root sum of squares over the codes, over a grid of pixels): the margin every decision has is
+    about half of it.
 
     One pixel's code is noisy; a surface's is not: its absolute phase is smooth, and a wrong order is
     2 pi off. A pixel keeps its order only where it is the order nearest the median phase of the 5 x 5
@@ -257,90 +260,115 @@ class CompositeDecoder:
 
     def __init__(self, calibration: Calibration, depth_range_mm: tuple[float, float], min_surface_px: int = 0):
         self.min_surface_px = min_surface_px
-        if calibration.code_model is None:
-            raise PhaseError("the composite decoder needs a calibration made with the composite pattern (a code model)")
+        if not calibration.code_models:
+            raise PhaseError("the composite decoder needs a calibration made with the composite pattern (code models)")
         cam = calibration.camera
         u, v = cam.ideal_pixels()
         ends = [np.broadcast_to(calibration.model.phase_at_depth(z, u, v), cam.shape) for z in depth_range_mm]
         span = np.abs(ends[1] - ends[0]) / TWO_PI
-        if span.max() > CODE_ORDERS - 1:
+        orders = max(k for k, _ in COMPOSITE_CODES)
+        if span.max() > orders - 1:
             raise PhaseError(
                 f"the working range {depth_range_mm[0]:g}-{depth_range_mm[1]:g} mm spans up to {span.max():.1f} "
-                f"fringe orders; the composite's code tells {CODE_ORDERS} apart"
+                f"fringe orders; the composite's code tells {orders} apart"
             )
-        lowest = np.minimum(ends[0], ends[1]) - (CODE_ORDERS - span) / 2 * TWO_PI
-        # the row phase along the window, a straight line in the carrier phase per pixel (least squares)
-        t = np.arange(CODE_ORDERS + 1) - CODE_ORDERS / 2
-        rows = [self._row(calibration, lowest + TWO_PI * (k + CODE_ORDERS / 2), u, v) for k in t]
-        slope = sum(k * r for k, r in zip(t, rows)) / (np.sum(t * t) * TWO_PI)
-        middle = lowest + np.pi * CODE_ORDERS
-        intercept = sum(rows) / len(rows) - slope * middle
-        self.row_fit_error = max(
-            float(np.abs(intercept + slope * (middle + TWO_PI * k) - r).max()) for k, r in zip(t, rows)
-        )
-        self.lowest, self.row_intercept = lowest.astype(np.float32), intercept.astype(np.float32)
-        self.row_rate = (slope + 1 / CODE_ORDERS).astype(np.float32)  # d(predicted code) / d(carrier phase)
-        self.spacing = (TWO_PI * self.row_rate).astype(np.float32)  # the code from one order to the next
-        # the candidates inside the working range, with half an order to spare at each end
-        self.first = np.floor((CODE_ORDERS - span) / 2 - 0.5).astype(np.float32)
-        self.last = np.ceil((CODE_ORDERS + span) / 2 + 0.5).astype(np.float32)
+        lowest = np.minimum(ends[0], ends[1]) - (orders - span) / 2 * TWO_PI
+        middle = lowest + np.pi * orders
+        # each code's row phase along the window, a straight line in the carrier phase per pixel (least squares)
+        t = np.arange(orders + 1) - orders / 2
+        self.codes, self.row_fit_error = [], 0.0  # per code, coarse first: (intercept, rate, spacing)
+        for i in sorted(range(len(COMPOSITE_CODES)), key=lambda i: -COMPOSITE_CODES[i][0]):
+            rows = [self._row(calibration, i, middle + TWO_PI * k, u, v) for k in t]
+            slope = sum(k * r for k, r in zip(t, rows)) / (np.sum(t * t) * TWO_PI)
+            intercept = sum(rows) / len(rows) - slope * middle
+            self.row_fit_error = max(
+                self.row_fit_error,
+                *(float(np.abs(intercept + slope * (middle + TWO_PI * k) - r).max()) for k, r in zip(t, rows)),
+            )
+            rate = slope + 1 / COMPOSITE_CODES[i][0]  # d(predicted code) / d(carrier phase)
+            self.codes.append((i, *(a.astype(np.float32) for a in (intercept, rate, TWO_PI * rate))))
+        self.lowest = lowest.astype(np.float32)
+        # the candidates' phases: inside the working range, with half an order to spare at each end
+        self.low = (np.minimum(ends[0], ends[1]) - np.pi).astype(np.float32)
+        self.high = (np.maximum(ends[0], ends[1]) + np.pi).astype(np.float32)
         self.min_separation = self._separation(calibration, ends, u, v)
         self.terms = depth_terms(calibration)
 
     @staticmethod
-    def _row(calibration: Calibration, phase, u, v):
-        return calibration.code_row_phase_at_depth(calibration.model.depth(phase, u, v), u, v)
+    def _row(calibration: Calibration, code: int, phase, u, v):
+        return calibration.code_row_phase_at_depth(code, calibration.model.depth(phase, u, v), u, v)
 
     def _separation(self, calibration: Calibration, ends, u, v, step: int = 8) -> float:
-        """How close the codes of two orders in the working range come, over every step-th pixel (rad)."""
+        """How close the codes of two orders in the working range come, over every step-th pixel (rad,
+        the root sum of squares of each code's difference)."""
         u, v = u[:, ::step], v[::step]
         lo = np.minimum(ends[0], ends[1])[::step, ::step]
         hi = np.maximum(ends[0], ends[1])[::step, ::step]
         codes, inside = [], []
         for k in range(int(np.ceil((hi - lo).max() / TWO_PI)) + 1):
             phase = lo + TWO_PI * k
-            codes.append(self._row(calibration, phase, u, v) + phase / CODE_ORDERS)
+            codes.append(
+                [self._row(calibration, i, phase, u, v) + phase / n for i, (n, _) in enumerate(COMPOSITE_CODES)]
+            )
             inside.append(phase <= hi)
         closest = np.inf
         for a in range(len(codes)):
             for b in range(a + 1, len(codes)):
-                d = np.abs(wrap_phase(codes[a] - codes[b]))
+                d = np.sqrt(sum(wrap_phase(ca - cb) ** 2 for ca, cb in zip(codes[a], codes[b])))
                 closest = min(closest, float(np.where(inside[a] & inside[b], d, np.inf).min()))
         return closest
 
-    def code_phase(self, carrier: np.ndarray, code: np.ndarray) -> np.ndarray:
-        """Each pixel's absolute carrier phase as its own code tells it.
+    def code_phase(self, carrier: np.ndarray, codes: list[np.ndarray]) -> np.ndarray:
+        """Each pixel's absolute carrier phase as its own codes tell it.
 
-        With the row phase a + b Phi, the j-th candidate Phi = lowest + 2 pi j predicts the code
-        a + (b + 1/K) lowest + j s, s = 2 pi (b + 1/K): j s = q + 2 pi m for q, the code left over, and
-        a whole number m of turns (the predictions span about one turn, so m is -1, 0 or 1); of the
-        candidates inside the working range the one the code fits best."""
+        With code i's row phase a + b Phi, the j-th candidate Phi = lowest + 2 pi j predicts the code
+        a + (b + 1/K_i) lowest + j s_i, s_i = 2 pi (b + 1/K_i). The coarse code fixes j up to its turns
+        (the drift leaves 31-43 orders per turn across the image, about as many as the working range
+        spans), so two values of j fit it: the one in its first turn, and that one a turn nearer the
+        middle of the range. From each, every finer code moves j to the nearest value it fits exactly
+        (at most half a turn of that code away), and j rounded is a candidate. Of the candidates whose
+        phase lies in the working range (half an order to spare at each end), the one all codes fit
+        best (least sum of squared misses); where neither does, the nearest order inside."""
         two_pi = np.float32(TWO_PI)
         lowest = carrier + two_pi * np.ceil((self.lowest - carrier) / two_pi)  # the lowest candidate's phase
-        q = code - self.row_intercept - self.row_rate * lowest
-        q -= two_pi * np.floor(q / two_pi)
+        first, last = np.ceil((self.low - lowest) / two_pi), np.floor((self.high - lowest) / two_pi)
+        left = [(codes[i] - a - rate * lowest, s) for i, a, rate, s in self.codes]  # what j s_i must match
+        coarse, spacing = left[0]
+        turn = two_pi / spacing
+        j = (coarse - two_pi * np.floor(coarse / two_pi)) / spacing
         best_j = best_miss = None
-        for turns in (-1, 0, 1):
-            turned = q + np.float32(turns) * two_pi
-            j = np.rint(turned / self.spacing)
-            miss = np.abs(turned - j * self.spacing)
-            miss[(j < self.first) | (j > self.last)] = np.inf
+        for j in (j, j - np.copysign(turn, j - np.float32(0.5) * (first + last))):
+            for code, s in left[1:]:
+                miss = code - j * s
+                j = j + (miss - two_pi * np.rint(miss / two_pi)) / s
+            j = np.rint(j)
+            miss = np.zeros_like(j)
+            for code, s in left:
+                m = code - j * s
+                miss += np.square(m - two_pi * np.rint(m / two_pi))
+            miss[(j < first) | (j > last)] = np.inf
             if best_j is None:
                 best_j, best_miss = j, miss
             else:
                 better = miss < best_miss
-                best_j[better], best_miss[better] = j[better], miss[better]
-        return lowest + two_pi * best_j
+                best_j[better] = j[better]
+        return lowest + two_pi * np.clip(best_j, first, last)
 
     def __call__(
         self, out: np.ndarray, min_confidence: float, fringes: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """out: (4, H, W) carrier numerator, denominator, code numerator, denominator; fringes: the
-        pixels that show fringes (default all). Returns (depth mm, confidence), NaN where unknown."""
-        num, den, code_num, code_den = (np.ascontiguousarray(c, np.float32) for c in out)
+        """out: (2 + 2 x codes, H, W) the carrier's numerator and denominator, then each code's; fringes:
+        the pixels that show fringes (default all). Returns (depth mm, confidence), NaN where unknown."""
+        num, den = (np.ascontiguousarray(c, np.float32) for c in out[:2])
         two_pi = np.float32(2 * np.pi)
         carrier = cv2.phase(den, num)
-        own = self.code_phase(carrier, cv2.phase(code_den, code_num))
+        codes = [
+            cv2.phase(
+                np.ascontiguousarray(out[3 + 2 * i], np.float32), np.ascontiguousarray(out[2 + 2 * i], np.float32)
+            )
+            for i in range(len(COMPOSITE_CODES))
+        ]
+        own = self.code_phase(carrier, codes)
         if fringes is None:
             fringes = np.ones(carrier.shape, bool)
         local = np.where(fringes, own, np.float32(0))
@@ -381,18 +409,20 @@ FTP_MIN_CONFIDENCE = 0.5  # the composite by FTP: not tuned (a baseline), half t
 
 
 def composite_ftp_phases(image: np.ndarray, calibration: Calibration):
-    """(carrier phase, code phase, carrier lobe amplitude) of a composite image by FTP, each lobe where
-    the calibration puts it at the reference depth (the median phase slope, in cycles per image)."""
+    """(carrier phase, [each code's phase], carrier lobe amplitude) of a composite image by FTP, each
+    lobe where the calibration puts it at the reference depth (the median phase slope, in cycles per
+    image)."""
     cal = calibration
     u, v = cal.camera.ideal_pixels()
     carrier = cal.model.phase_at_depth(cal.reference_depth_mm, u, v) * np.ones(image.shape)
-    code = carrier / CODE_ORDERS + cal.code_row_phase_at_depth(cal.reference_depth_mm, u, v)
     h, w = image.shape
+    centres = []
+    for i, (orders, _) in enumerate(COMPOSITE_CODES):
+        code = carrier / orders + cal.code_row_phase_at_depth(i, cal.reference_depth_mm, u, v)
+        centres.append((np.median(np.diff(code, axis=1)) * w / TWO_PI, np.median(np.diff(code, axis=0)) * h / TWO_PI))
+    codes = ftp_code_phases(image, centres)
     carrier, amplitude = ftp_wrapped_phase(image, True, carrier=np.median(np.diff(carrier, axis=1)) * w / TWO_PI)
-    code, _ = ftp_code_phase(
-        image, centre=(np.median(np.diff(code, axis=1)) * w / TWO_PI, np.median(np.diff(code, axis=0)) * h / TWO_PI)
-    )
-    return carrier, code, amplitude
+    return carrier, codes, amplitude
 
 
 def reconstruct_ftp(
@@ -403,9 +433,9 @@ def reconstruct_ftp(
 ) -> Reconstruction:
     """Single-shot baseline: Takeda's FTP wrapped phase, then the same rational model.
 
-    With the composite (a calibration with a code model) the code grating's own lobe tells each
+    With the composite (a calibration with code models) the code gratings' own lobes tell each
     pixel's fringe order through decoder (a CompositeDecoder for this calibration and the working
-    range: made once by the caller, it is costly to make); both lobes are taken where the calibration
+    range: made once by the caller, it is costly to make); the lobes are taken where the calibration
     puts them at the reference depth. With the paper's image there is no order to tell: the phase is
     unwrapped spatially, and the global multiple of 2 pi is chosen to put the median pixel at the
     calibration's reference depth (the background), as a reference-plane FTP set-up does.
@@ -415,12 +445,12 @@ def reconstruct_ftp(
     if image.shape != cal.camera.shape:
         raise PhaseError(f"expected one {cal.camera.width}x{cal.camera.height} image, got shape {image.shape}")
     u, v = cal.camera.ideal_pixels()
-    if cal.code_model is not None:
+    if cal.code_models:
         if decoder is None:
             raise PhaseError("the composite's FTP needs a CompositeDecoder for the working range its code spans")
-        carrier, code, amplitude = composite_ftp_phases(image, cal)
+        carrier, codes, amplitude = composite_ftp_phases(image, cal)
         fringes = amplitude >= limits.min_modulation * full_scale(image.dtype)
-        out = np.stack([np.sin(carrier), np.cos(carrier), np.sin(code), np.cos(code)])
+        out = np.stack([f(p) for p in (carrier, *codes) for f in (np.sin, np.cos)])
         depth, _ = decoder(out, FTP_MIN_CONFIDENCE, fringes)
         depth, valid = trusted_depth(depth, np.isfinite(depth), limits.max_depth_step_mm)
         phase = cal.model.phase_at_depth(depth, u, v)

@@ -10,8 +10,8 @@ import numpy as np
 
 from .calibration import Calibration, CalibrationError, CameraIntrinsics, fit_rational_model
 from .metrics import DepthErrors, depth_errors, noise_limited_depth_std
-from .patterns import CODE_ORDERS, PatternSet
-from .phase import TWO_PI, ftp_code_phase, unwrap_spatial
+from .patterns import COMPOSITE_CODES, PatternSet
+from .phase import TWO_PI, code_lobe_centres, ftp_code_phases, unwrap_spatial
 from .reconstruct import QualityLimits, Reconstruction, multi_frequency_phase
 from .scenes import make_scene, plane_scene
 from .simulation import Rig, render
@@ -45,7 +45,7 @@ def calibrate_from_planes(
     if len(set(depths_mm)) < 3:
         raise CalibrationError(f"need planes at three or more different depths, got {sorted(set(depths_mm))}")
     ideal_u, ideal_v = (np.broadcast_to(c, camera.shape) for c in camera.ideal_pixels())  # the model's (u, v)
-    samples, rows, code_samples = [], [], []
+    samples, rows, code_samples = [], [], []  # per plane: each code's row phase, and it plus the carrier's
     for images, z in zip(stacks, depths_mm):
         images = np.asarray(images)
         if images.shape[1:] != camera.shape:
@@ -62,33 +62,34 @@ def calibrate_from_planes(
         u, v = ideal_u[v[keep], u[keep]], ideal_v[v[keep], u[keep]]
         samples.append((u, v, phase[valid][keep], np.full(u.size, float(z))))
         if patterns.single_shot == "composite":
-            row = code_row_phase(images[patterns.single_shot_index], phase, valid)
+            plane = code_row_phases(images[patterns.single_shot_index], phase, valid)
             if rows:  # the same 2 pi multiple on every plane: the row phase hardly moves with depth
-                row += TWO_PI * np.rint(np.nanmedian(rows[0] - row) / TWO_PI)
-            rows.append(row)
-            code_samples.append(row + phase)
+                plane = [
+                    row + TWO_PI * np.rint(np.nanmedian(first - row) / TWO_PI) for first, row in zip(rows[0], plane)
+                ]
+            rows.append(plane)
+            code_samples.append([row + phase for row in plane])
     u, v, phase, depth = (np.concatenate(parts) for parts in zip(*samples))
     model = fit_rational_model(u, v, phase, depth)
     residuals = [float(np.sqrt(np.mean((model.depth(p, uu, vv) - z) ** 2))) for uu, vv, p, z in samples]
     reference = float(np.median(depths_mm)) if reference_depth_mm is None else float(reference_depth_mm)
-    code_model = None
-    if code_samples:
-        keep = (slice(None, None, sample_step),) * 2
-        u, v = (np.tile(a[keep].ravel(), len(code_samples)) for a in (ideal_u, ideal_v))
-        chi = np.concatenate([c[keep].ravel() for c in code_samples])
-        code_model = fit_rational_model(
-            u, v, chi, np.repeat(np.asarray(depths_mm, float), chi.size // len(code_samples))
+    code_models = []
+    keep = (slice(None, None, sample_step),) * 2
+    u, v = (np.tile(a[keep].ravel(), len(stacks)) for a in (ideal_u, ideal_v))
+    for code in zip(*code_samples):  # each code's samples on every plane
+        chi = np.concatenate([c[keep].ravel() for c in code])
+        code_models.append(
+            fit_rational_model(u, v, chi, np.repeat(np.asarray(depths_mm, float), chi.size // len(code)))
         )
-    return Calibration(camera, model, patterns, reference, code_model), residuals
+    return Calibration(camera, model, patterns, reference, code_models), residuals
 
 
 CODE_BORDER_PX = 24  # FTP is unreliable this near the image's and the lit area's edges
 
 
-def code_row_phase(composite: np.ndarray, phase: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """The code grating's row phase on a plane (its FTP phase less the carrier's absolute phase /
-    CODE_ORDERS), unwrapped across the plane; NaN near edges and where the multi-shot phase is untrusted."""
-    code, _ = ftp_code_phase(composite)
+def code_row_phases(composite: np.ndarray, phase: np.ndarray, valid: np.ndarray) -> list[np.ndarray]:
+    """Each code grating's row phase on a plane (its FTP phase less the carrier's absolute phase / K),
+    unwrapped across the plane; NaN near edges and where the multi-shot phase is untrusted."""
     inner = cv2.erode(
         valid.astype(np.uint8),
         np.ones((2 * CODE_BORDER_PX + 1,) * 2, np.uint8),
@@ -102,11 +103,14 @@ def code_row_phase(composite: np.ndarray, phase: np.ndarray, valid: np.ndarray) 
     _, nearest = cv2.distanceTransformWithLabels(
         (~inner).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
     )
-    wrapped = np.mod(code - phase / CODE_ORDERS, TWO_PI)
-    sources = np.zeros(nearest.max() + 1, wrapped.dtype)
-    sources[nearest[inner]] = wrapped[inner]
-    row = unwrap_spatial(np.where(inner, wrapped, sources[nearest]))
-    return np.where(inner, row, np.nan)
+    rows = []
+    codes = ftp_code_phases(composite, code_lobe_centres(composite, len(COMPOSITE_CODES)))
+    for (orders, _), code in zip(COMPOSITE_CODES, codes):
+        wrapped = np.mod(code - phase / orders, TWO_PI)
+        sources = np.zeros(nearest.max() + 1, wrapped.dtype)
+        sources[nearest[inner]] = wrapped[inner]
+        rows.append(np.where(inner, unwrap_spatial(np.where(inner, wrapped, sources[nearest])), np.nan))
+    return rows
 
 
 def simulated_calibration(

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fpp_nodes.core.calibration import Calibration, CalibrationError
-from fpp_nodes.core.patterns import CODE_ORDERS
+from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.phase import PhaseError
 from fpp_nodes.core.reconstruct import CompositeDecoder, order_surfaces
 from fpp_nodes.core.scenes import FAMILY_NAMES, SURFACE_DEPTH_MM, make_scene, plane_scene
@@ -14,28 +14,49 @@ from fpp_nodes.core.simulation import SceneRenderer, random_rig
 
 
 def exact_phases(renderer, patterns):
-    """Carrier and code phase of every pixel, from where its surface point lands in the projector."""
+    """Carrier and each code's phase at every pixel, from where its surface point lands in the projector."""
     xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
-    fx, fy = patterns.code_frequencies
     carrier = 2 * np.pi * patterns.frequencies[-1] * xp / patterns.width
-    code = 2 * np.pi * (fx * xp / patterns.width + fy * yp / patterns.height)
-    return carrier, code
+    codes = [2 * np.pi * (fx * xp / patterns.width + fy * yp / patterns.height) for fx, fy in patterns.code_frequencies]
+    return carrier, codes
 
 
-def as_network_output(carrier, code):
-    return np.stack([np.sin(carrier), np.cos(carrier), np.sin(code), np.cos(code)]).astype(np.float32)
+def as_network_output(carrier, codes):
+    return np.stack([f(p) for p in (carrier, *codes) for f in (np.sin, np.cos)]).astype(np.float32)
 
 
-def test_the_code_model_tells_the_row_phase_across_the_working_range(rig, patterns, calibration):
-    """Fitted from noisy planes at 1100-1300 mm, it holds from 1000 to 1350 mm within 0.01 rad, a seventh
-    of the code's margin (half the 0.137 rad between the closest two orders); measured 0.002 rad."""
+def orders_off(codes, orders):
+    """The codes as they would be a whole number of carrier orders (per pixel) away."""
+    return [code + orders * 2 * np.pi / k for code, (k, _) in zip(codes, COMPOSITE_CODES)]
+
+
+def test_the_code_models_tell_the_row_phases_across_the_working_range(rig, patterns, calibration):
+    """Fitted from noisy planes at 1100-1300 mm, they hold from 1000 to 1350 mm within 0.02 rad, a
+    twentieth of the decisions' margin (0.47 rad); measured up to 0.009 rad."""
     u, v = rig.camera().ideal_pixels()
-    fy = patterns.code_frequencies[1]
-    for z in (SURFACE_DEPTH_MM[0], 1175.0, SURFACE_DEPTH_MM[1]):
+    for i, (_, fy) in enumerate(patterns.code_frequencies):
+        for z in (SURFACE_DEPTH_MM[0], 1175.0, SURFACE_DEPTH_MM[1]):
+            renderer = SceneRenderer(rig, plane_scene(rig, z))
+            truth = 2 * np.pi * fy * renderer.yp[renderer.crop] / patterns.height
+            error = np.angle(np.exp(1j * (calibration.code_row_phase_at_depth(i, z, u, v) - truth)))
+            assert np.abs(error).max() < 0.02, (i, z)
+
+
+def test_each_pixel_names_its_order_with_code_errors_inside_the_margin(rig, patterns, calibration):
+    """The decision, coarse code first: every pixel of a plane at each end of the working range keeps
+    its order with each code 0.3 rad off either way (0.42 rad together, inside the margin of 0.47 rad);
+    0.7 rad off the fine code, most pixels of the nearest plane name another order."""
+    decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+    for z in SURFACE_DEPTH_MM[::-1]:
         renderer = SceneRenderer(rig, plane_scene(rig, z))
-        truth = 2 * np.pi * fy * renderer.yp[renderer.crop] / patterns.height
-        error = np.angle(np.exp(1j * (calibration.code_row_phase_at_depth(z, u, v) - truth)))
-        assert np.abs(error).max() < 0.01, z
+        carrier, codes = exact_phases(renderer, patterns)
+        truth = carrier.astype(np.float32)
+        wrapped = np.mod(truth, np.float32(2 * np.pi))
+        for signs in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+            off = [np.float32(c + 0.3 * s) for c, s in zip(codes, signs)]
+            assert np.abs(decoder.code_phase(wrapped, off) - truth).max() < 1e-3, (z, signs)
+    off = [np.float32(codes[0] + 0.7), np.float32(codes[1])]  # the plane at 1000 mm
+    assert np.mean(np.abs(decoder.code_phase(wrapped, off) - truth) > 1) > 0.5
 
 
 @pytest.mark.parametrize("family", FAMILY_NAMES)
@@ -60,14 +81,15 @@ def test_a_surface_outvotes_scattered_order_errors_and_a_code_of_noise_is_nan(ri
     never a guess."""
     decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
     renderer = SceneRenderer(rig, plane_scene(rig, 1150.0))
-    carrier, code = exact_phases(renderer, patterns)
+    carrier, codes = exact_phases(renderer, patterns)
     rng = np.random.default_rng(0)
-    wrong = rng.random(code.shape) < 0.2
-    noisy = code + wrong * rng.integers(1, 6, code.shape) * 2 * np.pi / CODE_ORDERS
+    wrong = rng.random(carrier.shape) < 0.2
+    noisy = orders_off(codes, wrong * rng.integers(1, 6, carrier.shape))
     depth, confidence = decoder(as_network_output(carrier, noisy), 0.5)
     assert not np.isfinite(depth[wrong]).any() and np.isfinite(depth[~wrong]).mean() > 0.99
     assert np.nanmax(np.abs(depth - 1150.0)) < 0.05
-    depth, confidence = decoder(as_network_output(carrier, rng.uniform(0, 2 * np.pi, code.shape)), 0.5)
+    noise = [rng.uniform(0, 2 * np.pi, carrier.shape) for _ in codes]
+    depth, confidence = decoder(as_network_output(carrier, noise), 0.5)
     assert np.isnan(depth).mean() > 0.99
 
 
@@ -77,10 +99,10 @@ def test_a_coherent_patch_of_wrong_orders_is_its_own_surface_and_too_small_to_tr
     (9-17 mm) off. Its absolute phase steps by 2 pi at its border, so it is a surface of its own, and
     1600 pixels are fewer than min_surface_px: NaN, while the plane around it keeps its depth."""
     renderer = SceneRenderer(rig, plane_scene(rig, 1150.0))
-    carrier, code = exact_phases(renderer, patterns)
-    patch = np.zeros(code.shape, bool)
+    carrier, codes = exact_phases(renderer, patterns)
+    patch = np.zeros(carrier.shape, bool)
     patch[200:240, 300:340] = True
-    biased = as_network_output(carrier, code + patch * 2 * np.pi / CODE_ORDERS)
+    biased = as_network_output(carrier, orders_off(codes, patch))
     depth, _ = CompositeDecoder(calibration, SURFACE_DEPTH_MM)(biased, 0.5)
     assert np.mean(np.abs(depth[patch] - 1150.0) > 5) > 0.5  # the window's vote alone: an order off
     depth, confidence = CompositeDecoder(calibration, SURFACE_DEPTH_MM, min_surface_px=2000)(biased, 0.5)
@@ -103,12 +125,12 @@ def test_order_surfaces_join_neighbours_whose_absolute_phases_differ_by_less_tha
     assert sizes[labels[20, 30]] == 18 * 18
 
 
-def test_the_code_tells_every_two_orders_of_the_working_range_apart(calibration):
-    """The design numbers (CODE_ORDERS, CODE_ROW_PERIOD_PX): on the default rig the codes of any two
-    orders in 1000-1350 mm stay at least 0.12 rad apart (measured 0.137), and the row phase's drift
-    over the decoder's window is a straight line within 2e-3 rad (measured 5e-4)."""
+def test_the_codes_tell_every_two_orders_of_the_working_range_apart(calibration):
+    """The design (patterns.COMPOSITE_CODES): on the default rig the codes of any two orders in
+    1000-1350 mm stay at least 0.85 rad apart (root sum of squares over the codes; measured 0.93), and
+    each row phase's drift over the decoder's window is a straight line within 3e-3 rad (measured 1.4e-3)."""
     decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
-    assert decoder.min_separation > 0.12 and decoder.row_fit_error < 2e-3
+    assert decoder.min_separation > 0.85 and decoder.row_fit_error < 3e-3
 
 
 def test_a_working_range_wider_than_the_code_is_refused(calibration):
@@ -120,15 +142,18 @@ def test_a_working_range_wider_than_the_code_is_refused(calibration):
         replace(calibration.patterns, single_shot="paper"),
         calibration.reference_depth_mm,
     )
-    with pytest.raises(PhaseError, match="code model"):
+    with pytest.raises(PhaseError, match="code models"):
         CompositeDecoder(paper, SURFACE_DEPTH_MM)
 
 
-def test_a_calibration_has_a_code_model_exactly_with_the_composite(calibration):
+def test_a_calibration_has_code_models_exactly_with_the_composite(calibration):
     d = calibration.to_dict()
-    assert Calibration.from_dict(d).code_model is not None
-    del d["code_model"]
-    with pytest.raises(CalibrationError, match="code model"):
+    assert len(Calibration.from_dict(d).code_models) == len(COMPOSITE_CODES)
+    d["code_model"] = d["code_models"][0]  # a file made for the first composite, with one code grating
+    with pytest.raises(CalibrationError, match="earlier composite"):
+        Calibration.from_dict(d)
+    del d["code_model"], d["code_models"]
+    with pytest.raises(CalibrationError, match="code models"):
         Calibration.from_dict(d)
     del d["patterns"]["single_shot"]  # a file written before the composite: the paper's 16 frames
     old = Calibration.from_dict(d)

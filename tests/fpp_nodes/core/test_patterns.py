@@ -62,13 +62,13 @@ def test_composite_rides_along_as_the_last_frame():
     assert p.count == p.phase_shift_count + 1 == len(p.names()) == pats.shape[0] == 17
     assert p.single_shot_index == 16 and PatternSet(single_shot="paper").single_shot_index == 12
     light = (pats[16] / 255.0) ** 2.2
-    fx, fy = p.code_frequencies
-    x, y = np.arange(p.width)[None, :], np.arange(p.height)[:, None]
-    expected = 0.5 + 0.25 * (
-        np.cos(2 * np.pi * 100 * x / p.width) + np.cos(2 * np.pi * (fx * x / p.width + fy * y / p.height))
-    )
+    (fx, fy), (gx, gy) = p.code_frequencies
+    x, y = np.arange(p.width)[None, :] / p.width, np.arange(p.height)[:, None] / p.height
+    expected = 0.5 + 0.2 * np.cos(2 * np.pi * 100 * x)
+    expected = expected + 0.15 * (np.cos(2 * np.pi * (fx * x + fy * y)) + np.cos(2 * np.pi * (gx * x + gy * y)))
     assert np.abs(light - expected).max() < 0.01  # within 8-bit quantization after gamma
-    assert fx * 36 == 100 and fy == 800 / 17  # the code's phase moves 2 pi / 36 per carrier fringe
+    # the codes' phases move 2 pi / 6 and 2 pi / 36 per carrier fringe, in rows of 12 and 24 pixels
+    assert fx * 6 == 100 and fy == 800 / 12 and gx * 36 == 100 and gy == 800 / 24
 
 
 def test_a_set_written_before_the_composite_is_the_papers():
