@@ -4,6 +4,7 @@ checkpoints, torchrun with two CPU processes, ONNX export and parity, the model 
 import pickle
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -145,6 +146,31 @@ def test_export_parity_card_and_onnxruntime(trained, tmp_path):
     (tmp_path / "m.yaml").unlink()
     with pytest.raises(ModelError, match="has no card"):
         DepthModel(tmp_path / "m.onnx")
+
+
+def test_a_model_for_another_composite_is_refused(tmp_path):
+    """A composite network that reads a different number of code gratings (the first composite's one)
+    with a card otherwise like the shipped one: a clear error, not a decoder reading the wrong channels."""
+    import hashlib
+
+    from fpp_nodes.core.model import default_model_path
+
+    path = tmp_path / "one_code.onnx"
+    torch.onnx.export(
+        CompositeNet(4, gratings=2).eval(),
+        (torch.zeros(1, 1, 64, 64),),
+        str(path),
+        dynamo=False,
+        input_names=["image"],
+        output_names=["fringe_phases"],
+        dynamic_axes={"image": {0: "batch", 2: "height", 3: "width"}},
+        opset_version=17,
+    )
+    card = yaml.safe_load(Path(default_model_path()).with_suffix(".yaml").read_text())
+    card.update(model=path.name, sha256=hashlib.sha256(path.read_bytes()).hexdigest())
+    path.with_suffix(".yaml").write_text(yaml.safe_dump(card))
+    with pytest.raises(ModelError, match="4 channels: it was trained for another composite pattern"):
+        DepthModel(path)
 
 
 def test_evaluate_prints_table_1(trained, tiny_set):
