@@ -28,6 +28,7 @@ from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.model import (
     MIN_MODULATION,
     PhaseOrderDecoder,
+    depth_roughness,
     fringe_mask,
     network_input,
     trusted_single_shot,
@@ -52,18 +53,27 @@ SILENT_ERROR_LIMIT = 0.01  # ... and in any one validation scene family (the sin
 CONFIDENCE_GRID = (0.0, 0.25, 0.5, 0.6, 0.7, 0.75, 0.8, 0.82, 0.84, 0.86, 0.88, 0.9, 0.92, 0.95, 0.98, 0.99, 0.999)
 FLOOR_GRID = (0.01, 0.02, 0.03, 0.05)  # the fringe mask's floor: the network's modulation, of full scale
 SURFACE_GRID = (0, 500, 2000)  # the composite decoder's smallest surface (pixels) whose vote counts
+ROUGHNESS_GRID = (0.15, 0.2, 0.25, 0.3, 0.4, np.inf)  # the composite's roughness rule (mm; inf: none)
 OUTPUTS = {"phase": "fringe_order", "composite": "fringe_phases"}  # other architectures: depth_mm
 
 
 def rule_counts(
-    samples, decoder, floors, confidences, steps_mm=(QualityLimits.max_depth_step_mm,), surfaces_px=(0,)
+    samples,
+    decoder,
+    floors,
+    confidences,
+    steps_mm=(QualityLimits.max_depth_step_mm,),
+    surfaces_px=(0,),
+    roughness_mm=(np.inf,),
 ) -> dict:
-    """(floor, surface px, confidence, step) -> {family: [output pixels, silent errors (off the exact
-    depth by > 1 mm), exact pixels]} over samples of (image, exact depth, network outputs, family),
-    decoded as DepthModel.infer does with that fringe-mask floor, smallest surface (a composite
-    decoder's min_surface_px), order-confidence threshold and edge-rule step."""
+    """(floor, surface px, confidence, step, roughness) -> {family: [output pixels, silent errors (off
+    the exact depth by > 1 mm), exact pixels]} over samples of (image, exact depth, network outputs,
+    family), decoded as DepthModel.infer does with that fringe-mask floor, smallest surface (a
+    composite decoder's min_surface_px), order-confidence threshold, edge-rule step and roughness
+    limit."""
     counts = {}
     for image, truth, out, family in samples:
+        exact = np.isfinite(truth)
         for m in floors:
             fringes = fringe_mask(image, m, modulation=np.hypot(out[0], out[1]))
             for px in surfaces_px:
@@ -72,14 +82,16 @@ def rule_counts(
                     decode = copy.copy(decoder)
                     decode.min_surface_px = px
                 kept, confidence = decode(out, 0.0, fringes)
-                for c in confidences:
-                    depth = np.where(confidence >= c, kept, np.nan).astype(np.float32)
-                    for s in steps_mm:
-                        shown = trusted_single_shot(depth.copy(), image, max_depth_step_mm=s, fringes=fringes)
-                        ok = np.isfinite(shown) & np.isfinite(truth)
-                        silent = np.count_nonzero(np.abs(shown[ok] - truth[ok]) > 1.0)
-                        n = counts.setdefault((m, px, c, s), {}).setdefault(family, np.zeros(3))
-                        n += (ok.sum(), silent, np.isfinite(truth).sum())
+                for s in steps_mm:
+                    shown = trusted_single_shot(kept.copy(), image, max_depth_step_mm=s, fringes=fringes)
+                    roughness = depth_roughness(shown)
+                    wrong = np.abs(shown - truth) > 1.0
+                    for r in roughness_mm:
+                        smooth = exact & (roughness <= r) if np.isfinite(r) else exact & np.isfinite(shown)
+                        for c in confidences:
+                            ok = smooth & (confidence >= c)
+                            n = counts.setdefault((m, px, c, s, r), {}).setdefault(family, np.zeros(3))
+                            n += (ok.sum(), np.count_nonzero(wrong & ok), exact.sum())
     return counts
 
 
@@ -92,6 +104,11 @@ def rule_rates(by_family: dict) -> dict:
         "silent_errors": n[1] / max(n[0], 1),
         "worst_family_silent_errors": max(f[1] / max(f[0], 1) for f in by_family.values()),
     }
+
+
+def rule_name(floor: float, surface_px: int, roughness_mm: float) -> str:
+    """How a card's validation table names one combination of the rules."""
+    return f"floor {floor} surface {surface_px}" + (f" roughness {roughness_mm}" if np.isfinite(roughness_mm) else "")
 
 
 @torch.no_grad()
@@ -109,9 +126,10 @@ def choose_decoding(model, data: str, decoder, limit: int = 200) -> dict:
             out = predict(model, torch.from_numpy(network_input(image))[None, None])[0].numpy()
             yield image, truth, out, sample_family(f)
 
-    surfaces = SURFACE_GRID if hasattr(decoder, "min_surface_px") else (0,)
-    counts = rule_counts(samples(), decoder, FLOOR_GRID, CONFIDENCE_GRID, surfaces_px=surfaces)
-    rows = {k[:3]: rule_rates(n) for k, n in counts.items()}
+    composite = hasattr(decoder, "min_surface_px")
+    surfaces, roughness = (SURFACE_GRID, ROUGHNESS_GRID) if composite else ((0,), (np.inf,))
+    counts = rule_counts(samples(), decoder, FLOOR_GRID, CONFIDENCE_GRID, surfaces_px=surfaces, roughness_mm=roughness)
+    rows = {(m, px, c, r): rule_rates(n) for (m, px, c, _, r), n in counts.items()}
     good = [
         k
         for k, r in rows.items()
@@ -119,24 +137,25 @@ def choose_decoding(model, data: str, decoder, limit: int = 200) -> dict:
         and r["worst_family_silent_errors"] <= SILENT_ERROR_LIMIT
         and r["coverage"] > 0
     ]
-    floor, surface, confidence = (
-        max(good, key=lambda k: (rows[k]["coverage"], k[2]))
+    floor, surface, confidence, rough = (
+        max(good, key=lambda k: (rows[k]["coverage"], k[2], -k[3]))
         if good
-        else (MIN_MODULATION, surfaces[-1], CONFIDENCE_GRID[-1])
+        else (MIN_MODULATION, surfaces[-1], CONFIDENCE_GRID[-1], roughness[0])
     )
     chosen = {"min_confidence": confidence, "min_modulation": floor}
-    if hasattr(decoder, "min_surface_px"):
-        chosen["min_surface_px"] = surface
+    if composite:
+        chosen |= {"min_surface_px": surface, "max_roughness_mm": rough}
     return chosen | {
         "chosen_on": f"{data} val, {len(files)} scenes",
         "silent_error_budget": SILENT_ERROR_BUDGET,
         "silent_error_limit_per_family": SILENT_ERROR_LIMIT,
         "validation": {
-            f"floor {m} surface {px}": {
-                str(c): {k: round(float(v), 5) for k, v in rows[m, px, c].items()} for c in CONFIDENCE_GRID
+            rule_name(m, px, r): {
+                str(c): {k: round(float(v), 5) for k, v in rows[m, px, c, r].items()} for c in CONFIDENCE_GRID
             }
             for m in FLOOR_GRID
             for px in surfaces
+            for r in roughness
         },
     }
 

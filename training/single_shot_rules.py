@@ -1,11 +1,12 @@
 """The single-shot path's pixel rules, re-checked on validation data: the shipped composite network on
 the composite set's validation split (never its test split). Each cell: coverage of the exact depth's
-pixels, and silent errors (output pixels off by more than 1 mm). Three tables, each against the
+pixels, and silent errors (output pixels off by more than 1 mm). Four tables, each against the
 order-confidence threshold, the other rules as the shipped card has them:
 - the edge rule's step (trusted_single_shot drops a pixel more than STEP mm from a neighbour; inf: no
   rule);
 - the fringe mask's floor (fringe_mask: the network's fringe modulation, a fraction of full scale);
-- the decoder's smallest surface whose vote counts (CompositeDecoder.min_surface_px).
+- the decoder's smallest surface whose vote counts (CompositeDecoder.min_surface_px);
+- the roughness limit (trusted_single_shot drops a pixel whose neighbourhood's depth scatters more).
 
     python -m training.single_shot_rules [--data data/fpp/composite]
 """
@@ -20,7 +21,7 @@ from fpp_nodes.core.model import DepthModel, default_model_path
 from fpp_nodes.core.reconstruct import QualityLimits
 
 from .dataset import load_sample, sample_family, split_files
-from .export import FLOOR_GRID, SURFACE_GRID, rule_counts, rule_rates
+from .export import FLOOR_GRID, ROUGHNESS_GRID, SURFACE_GRID, rule_counts, rule_rates
 
 CONFIDENCES = (0.5, 0.7, 0.75, 0.8, 0.82, 0.84, 0.86, 0.88, 0.9, 0.92, 0.95)
 STEPS_MM = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, np.inf)
@@ -41,22 +42,31 @@ def main():
     for f in files:
         image, _, truth = load_sample(f)
         outputs.append((image, truth, model.outputs(image), sample_family(f)))
-    floor, surface = model.min_modulation, model.decoder.min_surface_px
-    counts = rule_counts(outputs, model.decoder, (floor,), CONFIDENCES, STEPS_MM, (surface,))
-    counts.update(rule_counts(outputs, model.decoder, FLOOR_GRID, CONFIDENCES, surfaces_px=(surface,)))
-    counts.update(rule_counts(outputs, model.decoder, (floor,), CONFIDENCES, surfaces_px=SURFACE_GRID))
+    floor, surface, rough = model.min_modulation, model.decoder.min_surface_px, (model.max_roughness_mm,)
+    counts = rule_counts(outputs, model.decoder, (floor,), CONFIDENCES, STEPS_MM, (surface,), rough)
+    counts.update(
+        rule_counts(outputs, model.decoder, FLOOR_GRID, CONFIDENCES, surfaces_px=(surface,), roughness_mm=rough)
+    )
+    counts.update(
+        rule_counts(outputs, model.decoder, (floor,), CONFIDENCES, surfaces_px=SURFACE_GRID, roughness_mm=rough)
+    )
+    counts.update(
+        rule_counts(outputs, model.decoder, (floor,), CONFIDENCES, surfaces_px=(surface,), roughness_mm=ROUGHNESS_GRID)
+    )
+    r = rough[0]
     print(f"{args.data} validation split, {len(files)} scenes; each cell: coverage, silent errors")
-    table("edge rule step", [(f"step {s:g} mm", (floor, surface, s)) for s in STEPS_MM], counts)
-    table("fringe mask floor", [(f"floor {m:g}", (m, surface, STEP)) for m in FLOOR_GRID], counts)
-    table("smallest surface", [(f"surface {px} px", (floor, px, STEP)) for px in SURFACE_GRID], counts)
+    table("edge rule step", [(f"step {s:g} mm", (floor, surface, s, r)) for s in STEPS_MM], counts)
+    table("fringe mask floor", [(f"floor {m:g}", (m, surface, STEP, r)) for m in FLOOR_GRID], counts)
+    table("smallest surface", [(f"surface {px} px", (floor, px, STEP, r)) for px in SURFACE_GRID], counts)
+    table("roughness limit", [(f"roughness {x:g} mm", (floor, surface, STEP, x)) for x in ROUGHNESS_GRID], counts)
 
 
 def table(title: str, columns: list, counts: dict) -> None:
     print(f"\n{title}\n{'confidence':>10} " + " ".join(f"{name:>16}" for name, _ in columns))
     for c in CONFIDENCES:
         cells = []
-        for _, (floor, surface, step) in columns:
-            r = rule_rates(counts[floor, surface, c, step])
+        for _, (floor, surface, step, rough) in columns:
+            r = rule_rates(counts[floor, surface, c, step, rough])
             cells.append(f"{r['coverage']:7.1%} {r['silent_errors']:7.2%}")
         print(f"{c:>10} " + " ".join(f"{cell:>16}" for cell in cells))
 

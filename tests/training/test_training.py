@@ -21,10 +21,12 @@ from training.dataset import decode_depth, encode_depth, load_phase_targets, loa
 from training.export import (
     CONFIDENCE_GRID,
     FLOOR_GRID,
+    ROUGHNESS_GRID,
     SILENT_ERROR_BUDGET,
     SILENT_ERROR_LIMIT,
     SURFACE_GRID,
     export,
+    rule_name,
 )
 from training.models import CompositeNet, build, layer_counts, pad_to_stride
 from training.train import TrainConfig, load_checkpoint, model_from_checkpoint, train
@@ -330,10 +332,11 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     assert card["decoding"]["depth_range_mm"] == [1000.0, 1350.0] and "val" in card["decoding"]["chosen_on"]
     model = DepthModel(tmp_path / "m.onnx", threads=1)
     assert model.reads == "composite"
-    # the three rules chosen together on validation, and the ones the model runs with
+    # the four rules chosen together on validation, and the ones the model runs with
     assert model.min_modulation == card["decoding"]["min_modulation"] in FLOOR_GRID
     assert model.decoder.min_surface_px == card["decoding"]["min_surface_px"] in SURFACE_GRID
-    rule = f"floor {model.min_modulation} surface {model.decoder.min_surface_px}"
+    assert model.max_roughness_mm == card["decoding"]["max_roughness_mm"] in ROUGHNESS_GRID
+    rule = rule_name(model.min_modulation, model.decoder.min_surface_px, model.max_roughness_mm)
     chosen = card["decoding"]["validation"][rule][str(model.min_confidence)]
     within = chosen["silent_errors"] <= SILENT_ERROR_BUDGET
     assert (within and chosen["worst_family_silent_errors"] <= SILENT_ERROR_LIMIT) or (

@@ -86,8 +86,10 @@ class DepthModel:
             try:
                 calibration = Calibration.from_dict(self.card["calibration"])
                 self.min_confidence = float(self.card["decoding"]["min_confidence"])
-                # the fringe mask's floor, chosen with the threshold on validation (cards before it: 5%)
+                # the fringe mask's floor and the roughness rule, chosen with the threshold on validation
+                # (cards before them: 5%, no roughness rule)
                 self.min_modulation = float(self.card["decoding"].get("min_modulation", MIN_MODULATION))
+                self.max_roughness_mm = float(self.card["decoding"].get("max_roughness_mm", np.inf))
                 self.decoder = (
                     PhaseOrderDecoder(calibration)
                     if self.output == "fringe_order"
@@ -151,8 +153,10 @@ class DepthModel:
         out = self.outputs(image)
         if self.decoder is not None:
             fringes = fringe_mask(image, self.min_modulation, modulation=np.hypot(out[0], out[1]))
-            depth, confidence = self.decoder(out, self.min_confidence, fringes)
-            return trusted_single_shot(depth, image, fringes=fringes), confidence
+            depth, confidence = self.decoder(out, 0.0, fringes)  # every pixel whose order its neighbours share
+            depth = trusted_single_shot(depth, image, fringes=fringes, max_roughness_mm=self.max_roughness_mm)
+            depth[~(confidence >= self.min_confidence)] = np.nan
+            return depth, confidence
         depth = cv2.resize(out[0], self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else out[0]
         return trusted_single_shot(depth, image), None
 
@@ -208,13 +212,41 @@ def trusted_single_shot(
     image: np.ndarray,
     max_depth_step_mm: float = QualityLimits.max_depth_step_mm,
     fringes: np.ndarray | None = None,
+    max_roughness_mm: float = np.inf,
 ) -> np.ndarray:
-    """Set a network's depth to NaN (in place) where the image shows no usable fringes, and where it
-    smears a depth edge: a pixel whose depth differs from a neighbour's by more than max_depth_step_mm,
-    the multi-shot path's flying-pixel rule. A network smooths a depth step across a few pixels."""
+    """Set a network's depth to NaN (in place) where the image shows no usable fringes, where it
+    smears a depth edge (a pixel whose depth differs from a neighbour's by more than max_depth_step_mm,
+    the multi-shot path's flying-pixel rule: a network smooths a depth step across a few pixels), and
+    where the depth around it scatters by more than max_roughness_mm (depth_roughness)."""
     depth[~(fringe_mask(image) if fringes is None else fringes)] = np.nan
     depth[~drop_flying_pixels(depth, max_depth_step_mm)] = np.nan
+    if np.isfinite(max_roughness_mm):
+        depth[~(depth_roughness(depth) <= max_roughness_mm)] = np.nan
     return depth
+
+
+ROUGHNESS_WINDOW = 9  # pixels, the composite decoder's vote window
+
+
+def depth_roughness(depth: np.ndarray, window: int = ROUGHNESS_WINDOW) -> np.ndarray:
+    """How much a single-shot depth map scatters around each pixel (mm, NaN where it has no depth):
+    the RMS over the window of each depth's difference from its own window's mean, NaN pixels left
+    out. On a smooth surface, tilted or not, that is the network's phase noise through dz/dphi (a
+    plane's depths equal their window's mean); where one image cannot tell the phase well (dark,
+    noisy, textured, blurred) it grows. Without knowing the truth it stands for the multi-shot path's
+    expected depth noise. It understates the error (the network's errors are correlated over its
+    receptive field), so its limit is chosen on validation data."""
+    known = np.isfinite(depth)
+    if not known.any():
+        return np.full(depth.shape, np.nan, np.float32)
+    size = (window, window)
+    values = np.where(known, depth - np.float32(np.mean(depth[known])), 0).astype(np.float32)
+    count = np.maximum(cv2.boxFilter(known.astype(np.float32), -1, size, normalize=False), 1)
+    residual = np.where(known, values - cv2.boxFilter(values, -1, size, normalize=False) / count, 0)
+    scatter = cv2.boxFilter(np.square(residual), -1, size, normalize=False) / count
+    roughness = np.sqrt(np.maximum(scatter, 0))  # a running box sum can dip just below 0
+    roughness[~known] = np.nan
+    return roughness
 
 
 def fringe_mask(

@@ -335,9 +335,9 @@ class CompositeDecoder:
         left = [(codes[i] - a - rate * lowest, s) for i, a, rate, s in self.codes]  # what j s_i must match
         coarse, spacing = left[0]
         turn = two_pi / spacing
-        j = (coarse - two_pi * np.floor(coarse / two_pi)) / spacing
+        fits = (coarse - two_pi * np.floor(coarse / two_pi)) / spacing  # in the coarse code's first turn
         best_j = best_miss = None
-        for j in (j, j - np.copysign(turn, j - np.float32(0.5) * (first + last))):
+        for j in (fits, fits - np.copysign(turn, fits - np.float32(0.5) * (first + last))):
             for code, s in left[1:]:
                 miss = code - j * s
                 j = j + (miss - two_pi * np.rint(miss / two_pi)) / s

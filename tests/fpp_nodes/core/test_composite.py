@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from fpp_nodes.core.calibration import Calibration, CalibrationError
+from fpp_nodes.core.model import depth_roughness
 from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.phase import PhaseError
 from fpp_nodes.core.reconstruct import CompositeDecoder, order_surfaces
@@ -158,3 +159,22 @@ def test_a_calibration_has_code_models_exactly_with_the_composite(calibration):
     del d["patterns"]["single_shot"]  # a file written before the composite: the paper's 16 frames
     old = Calibration.from_dict(d)
     assert old.patterns.single_shot == "paper" and old.patterns.count == 16
+
+
+def test_depth_roughness_is_the_scatter_about_the_neighbourhood():
+    """A tilted plane has none (its depths equal their windows' means); white noise of 0.3 mm reads
+    about 0.3 mm (the window's own mean takes a little); no depth, no roughness; a NaN hole leaves its
+    neighbours' estimate intact."""
+    v, u = np.mgrid[:120, :160].astype(np.float32)
+    plane = 1200 + 0.8 * u - 0.5 * v
+    rough = depth_roughness(plane)
+    assert np.nanmax(rough[8:-8, 8:-8]) < 1e-3
+    noisy = plane + np.random.default_rng(0).normal(0, 0.3, plane.shape).astype(np.float32)
+    assert np.median(depth_roughness(noisy)) == pytest.approx(0.3, rel=0.1)
+    holed = noisy.copy()
+    holed[50:60, 50:60] = np.nan
+    rough = depth_roughness(holed)
+    assert np.isnan(rough[55, 55]) and np.median(
+        rough[40:70, 40:70][np.isfinite(rough[40:70, 40:70])]
+    ) == pytest.approx(0.3, rel=0.15)
+    assert np.isnan(depth_roughness(np.full((20, 20), np.nan, np.float32))).all()
