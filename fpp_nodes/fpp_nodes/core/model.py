@@ -152,7 +152,7 @@ class DepthModel:
         where the image shows no usable fringes); a depth-regressing model has none."""
         out = self.outputs(image)
         if self.decoder is not None:
-            fringes = fringe_mask(image, self.min_modulation, modulation=np.hypot(out[0], out[1]))
+            fringes = fringe_mask(image, self.min_modulation, modulation=cv2.magnitude(out[0], out[1]))
             depth, confidence = self.decoder(out, 0.0, fringes)  # every pixel whose order its neighbours share
             depth = trusted_single_shot(depth, image, fringes=fringes, max_roughness_mm=self.max_roughness_mm)
             depth[~(confidence >= self.min_confidence)] = np.nan

@@ -346,12 +346,11 @@ class CompositeDecoder:
             for code, s in left:
                 m = code - j * s
                 miss += np.square(m - two_pi * np.rint(m / two_pi))
-            miss[(j < first) | (j > last)] = np.inf
+            np.copyto(miss, np.float32(np.inf), where=(j < first) | (j > last))
             if best_j is None:
                 best_j, best_miss = j, miss
             else:
-                better = miss < best_miss
-                best_j[better] = j[better]
+                np.copyto(best_j, j, where=miss < best_miss)
         return lowest + two_pi * np.clip(best_j, first, last)
 
     def __call__(
@@ -377,14 +376,15 @@ class CompositeDecoder:
         agree = (np.abs(own - local) < np.pi) & fringes
         vote = cv2.boxFilter(agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW), borderType=cv2.BORDER_REPLICATE)
         surface, size = order_surfaces(local, fringes)
-        share = (np.bincount(surface[agree], minlength=size.size) / np.maximum(size, 1)).astype(np.float32)
+        agreeing = np.bincount(surface.ravel(), weights=agree.ravel(), minlength=size.size)
+        share = (agreeing / np.maximum(size, 1)).astype(np.float32)
         share[0] = 0  # label 0: beside a step, on no surface
         share[size < self.min_surface_px] = 0
         confidence = np.minimum(vote, np.take(share, surface))
-        confidence[~fringes] = np.nan
+        np.copyto(confidence, np.float32(np.nan), where=~fringes)
         ca, cb, da, db = self.terms
         depth = (ca + cb * own) / (da + db * own)
-        depth[~(agree & (confidence >= min_confidence))] = np.nan
+        np.copyto(depth, np.float32(np.nan), where=~(agree & (confidence >= min_confidence)))
         return depth, confidence
 
 
