@@ -288,6 +288,8 @@ class CompositeDecoder:
             rate = slope + 1 / COMPOSITE_CODES[i][0]  # d(predicted code) / d(carrier phase)
             self.codes.append((i, *(a.astype(np.float32) for a in (intercept, rate, TWO_PI * rate))))
         self.lowest = lowest.astype(np.float32)
+        # how far the finer codes can move j (half a turn each) and the rounding: code_phase's reach
+        self.reach = np.float32(0.5 + sum(np.pi / float(spacing.min()) for *_, spacing in self.codes[1:]))
         # the candidates' phases: inside the working range, with half an order to spare at each end
         self.low = (np.minimum(ends[0], ends[1]) - np.pi).astype(np.float32)
         self.high = (np.maximum(ends[0], ends[1]) + np.pi).astype(np.float32)
@@ -334,24 +336,32 @@ class CompositeDecoder:
         first, last = np.ceil((self.low - lowest) / two_pi), np.floor((self.high - lowest) / two_pi)
         left = [(codes[i] - a - rate * lowest, s) for i, a, rate, s in self.codes]  # what j s_i must match
         coarse, spacing = left[0]
-        turn = two_pi / spacing
         fits = (coarse - two_pi * np.floor(coarse / two_pi)) / spacing  # in the coarse code's first turn
-        best_j = best_miss = None
-        for j in (fits, fits - np.copysign(turn, fits - np.float32(0.5) * (first + last))):
-            for code, s in left[1:]:
-                miss = code - j * s
-                j = j + (miss - two_pi * np.rint(miss / two_pi)) / s
-            j = np.rint(j)
-            miss = np.zeros_like(j)
-            for code, s in left:
-                m = code - j * s
-                miss += np.square(m - two_pi * np.rint(m / two_pi))
-            np.copyto(miss, np.float32(np.inf), where=(j < first) | (j > last))
-            if best_j is None:
-                best_j, best_miss = j, miss
-            else:
-                np.copyto(best_j, j, where=miss < best_miss)
-        return lowest + two_pi * np.clip(best_j, first, last)
+        j = self._refined(fits, left)
+        # a turn of the coarse code nearer the middle, j may be inside the range too (a few % of the pixels)
+        turned = fits - np.copysign(two_pi / spacing, fits - np.float32(0.5) * (first + last))
+        near = np.flatnonzero((turned > first - self.reach) & (turned < last + self.reach))
+        if near.size:
+            sub, lo, hi = [(c.flat[near], s.flat[near]) for c, s in left], first.flat[near], last.flat[near]
+            here, there = j.flat[near], self._refined(turned.flat[near], sub)
+            better = self._misses(there, sub, lo, hi) < self._misses(here, sub, lo, hi)
+            j.flat[near[better]] = there[better]
+        return lowest + two_pi * np.clip(j, first, last)
+
+    @staticmethod
+    def _refined(j, left):
+        """j moved by each finer code to the nearest value it fits exactly, rounded."""
+        two_pi = np.float32(TWO_PI)
+        for code, s in left[1:]:
+            miss = code - j * s
+            j = j + (miss - two_pi * np.rint(miss / two_pi)) / s
+        return np.rint(j)
+
+    @staticmethod
+    def _misses(j, left, first, last):
+        """The sum of squared misses of every code at candidates j; inf outside the working range."""
+        miss = sum(np.square(wrap_phase(code - j * s)) for code, s in left)
+        return np.where((j < first) | (j > last), np.inf, miss)
 
     def __call__(
         self, out: np.ndarray, min_confidence: float, fringes: np.ndarray | None = None
