@@ -276,7 +276,7 @@ def test_a_data_set_from_a_recorded_bag(tmp_path):
     image, label, truth = load_sample(split_files(tmp_path / "set", "train")[0])
     np.testing.assert_array_equal(image, capture.images[patterns.single_shot_index])
     with np.load(split_files(tmp_path / "set", "train")[0]) as z:  # what the composite network learns
-        assert z["code"].shape == z["fringe"].shape == (2, 480, 640)
+        assert z["code"].shape == (4, 480, 640) and z["fringe"].shape == (2, 480, 640)  # two code gratings
     ok = np.isfinite(label) & capture.valid
     assert not np.isfinite(truth).any() and np.sqrt(np.mean((label - capture.depth_mm)[ok] ** 2)) < 0.06
 
@@ -312,7 +312,7 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     a threshold chosen on the validation split, and onnxruntime inference with the physics decoder."""
     data = write_set(tmp_path / "data", "composite", counts=(2, 1, 1), workers=1)
     with np.load(split_files(data, "train")[0]) as z:
-        assert z["code"].shape == (2, 480, 640) and str(z["family"]) == "bust"
+        assert z["code"].shape == (4, 480, 640) and str(z["family"]) == "bust"  # two code gratings
     train(
         TrainConfig(
             data=str(data),

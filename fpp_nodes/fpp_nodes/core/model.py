@@ -15,7 +15,7 @@ import numpy as np
 import yaml
 
 from .calibration import Calibration
-from .patterns import COMPOSITE_CODES, PatternError, PatternSet
+from .patterns import CARRIER_AMPLITUDE, COMPOSITE_CODES, PatternError, PatternSet
 from .reconstruct import CompositeDecoder, QualityLimits, depth_terms, drop_flying_pixels, full_scale
 
 STRIDE = 32
@@ -152,7 +152,10 @@ class DepthModel:
         where the image shows no usable fringes); a depth-regressing model has none."""
         out = self.outputs(image)
         if self.decoder is not None:
-            fringes = fringe_mask(image, self.min_modulation, modulation=cv2.magnitude(out[0], out[1]))
+            share = CARRIER_AMPLITUDE if self.output == "fringe_phases" else 1.0
+            fringes = fringe_mask(
+                image, self.min_modulation, modulation=cv2.magnitude(out[0], out[1]), carrier_share=share
+            )
             depth, confidence = self.decoder(out, 0.0, fringes)  # every pixel whose order its neighbours share
             depth = trusted_single_shot(depth, image, fringes=fringes, max_roughness_mm=self.max_roughness_mm)
             depth[~(confidence >= self.min_confidence)] = np.nan
@@ -254,21 +257,23 @@ def fringe_mask(
     min_modulation: float = MIN_MODULATION,
     window: int = CONTRAST_WINDOW,
     modulation: np.ndarray | None = None,
+    carrier_share: float = 1.0,
 ) -> np.ndarray:
     """Pixels of a single fringe image whose depth a network can know: the fringe modulation is at
-    least min_modulation of full scale, and no pixel near it is saturated (clipped fringes). The
-    modulation is the phase-aware network's own estimate of the multi-shot B (modulation, full-scale
-    units: the multi-shot path's criterion) or else sqrt(2) x the local standard deviation over the
-    window (the amplitude of one sinusoid). A network answers everywhere; this keeps it from answering
-    in shadows, in the dark and in glare."""
+    least min_modulation of full scale, and no pixel near it is saturated (clipped fringes). The image
+    itself must show the contrast such a carrier makes (sqrt(2) x the local standard deviation over the
+    window, the amplitude of one sinusoid, at least carrier_share x min_modulation: the composite's
+    carrier has CARRIER_AMPLITUDE of the range), and where a phase-aware network estimates the
+    multi-shot B (modulation, full-scale units: the multi-shot path's criterion) so must that: a
+    network claims fringes where the image has none (at its borders in a black frame). A network
+    answers everywhere; this keeps it from answering in shadows, in the dark and in glare."""
     scale = full_scale(image.dtype)
+    mean = cv2.boxFilter(image, cv2.CV_32F, (window, window))
+    variance = cv2.sqrBoxFilter(image, cv2.CV_32F, (window, window))
+    variance -= cv2.multiply(mean, mean)
+    ok = variance >= 0.5 * (carrier_share * min_modulation * scale) ** 2
     if modulation is not None:
-        ok = modulation >= min_modulation
-    else:
-        mean = cv2.boxFilter(image, cv2.CV_32F, (window, window))
-        variance = cv2.sqrBoxFilter(image, cv2.CV_32F, (window, window))
-        variance -= cv2.multiply(mean, mean)
-        ok = variance >= 0.5 * (min_modulation * scale) ** 2
+        ok &= modulation >= min_modulation
     saturated = (image >= scale).astype(np.uint8)
     if saturated.any():
         ok &= cv2.dilate(saturated, np.ones((window, window), np.uint8)) == 0
