@@ -30,9 +30,8 @@ SINGLE_SHOT_KINDS = ("composite", "paper")
 # and the gratings' amplitudes (a for the carrier, b for each code; a + 2 b = 1 spans 0 .. 2 I_0). Chosen
 # with python -m training.compare_codes on validation scenes (docs/single-shot.md): one code telling 36
 # orders apart left a margin of 0.07 rad and its own codes named the wrong order on 25% of the pixels;
-# these two leave 0.47 rad and 2.7%, for 13% more carrier phase noise. Rows finer than 12/24 pixels drift
-# too far with depth (a camera pixel sees another projector row), coarser ones bring the lobes near the
-# albedo's.
+# these two leave 0.47 rad and 2.7%, for 13% more carrier phase noise; rows of 8.5/17 pixels drift too far
+# with depth (a camera pixel sees another projector row) and leave 0.21 rad.
 COMPOSITE_CODES = ((6, 12.0), (36, 24.0))
 CARRIER_AMPLITUDE, CODE_AMPLITUDE = 0.4, 0.3
 

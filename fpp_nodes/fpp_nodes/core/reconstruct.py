@@ -276,7 +276,7 @@ class CompositeDecoder:
         middle = lowest + np.pi * orders
         # each code's row phase along the window, a straight line in the carrier phase per pixel (least squares)
         t = np.arange(orders + 1) - orders / 2
-        self.codes, self.row_fit_error = [], 0.0  # per code, coarse first: (intercept, rate, spacing)
+        self.codes, self.row_fit_error = [], 0.0  # coarse first: (code index, intercept, rate, spacing)
         for i in sorted(range(len(COMPOSITE_CODES)), key=lambda i: -COMPOSITE_CODES[i][0]):
             rows = [self._row(calibration, i, middle + TWO_PI * k, u, v) for k in t]
             slope = sum(k * r for k, r in zip(t, rows)) / (np.sum(t * t) * TWO_PI)
