@@ -28,12 +28,12 @@ from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.model import (
     MIN_MODULATION,
     PhaseOrderDecoder,
+    decoded_fringes,
     depth_roughness,
-    fringe_mask,
     network_input,
     trusted_single_shot,
 )
-from fpp_nodes.core.patterns import CARRIER_AMPLITUDE, PatternSet
+from fpp_nodes.core.patterns import PatternSet
 from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits
 from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
 
@@ -72,11 +72,10 @@ def rule_counts(
     composite decoder's min_surface_px), order-confidence threshold, edge-rule step and roughness
     limit."""
     counts = {}
-    share = CARRIER_AMPLITUDE if isinstance(decoder, CompositeDecoder) else 1.0  # as DepthModel.infer
     for image, truth, out, family in samples:
         exact = np.isfinite(truth)
         for m in floors:
-            fringes = fringe_mask(image, m, modulation=np.hypot(out[0], out[1]), carrier_share=share)
+            fringes = decoded_fringes(image, out, m, decoder)
             for px in surfaces_px:
                 decode = decoder
                 if hasattr(decoder, "min_surface_px"):

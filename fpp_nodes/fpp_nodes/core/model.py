@@ -152,10 +152,7 @@ class DepthModel:
         where the image shows no usable fringes); a depth-regressing model has none."""
         out = self.outputs(image)
         if self.decoder is not None:
-            share = CARRIER_AMPLITUDE if self.output == "fringe_phases" else 1.0
-            fringes = fringe_mask(
-                image, self.min_modulation, modulation=cv2.magnitude(out[0], out[1]), carrier_share=share
-            )
+            fringes = decoded_fringes(image, out, self.min_modulation, self.decoder)
             depth, confidence = self.decoder(out, 0.0, fringes)  # every pixel whose order its neighbours share
             depth = trusted_single_shot(depth, image, fringes=fringes, max_roughness_mm=self.max_roughness_mm)
             depth[~(confidence >= self.min_confidence)] = np.nan
@@ -250,6 +247,13 @@ def depth_roughness(depth: np.ndarray, window: int = ROUGHNESS_WINDOW) -> np.nda
     roughness = np.sqrt(np.maximum(scatter, 0))  # a running box sum can dip just below 0
     roughness[~known] = np.nan
     return roughness
+
+
+def decoded_fringes(image: np.ndarray, out: np.ndarray, min_modulation: float, decoder) -> np.ndarray:
+    """fringe_mask for a phase-aware network's outputs (its carrier's numerator and denominator first),
+    with the carrier's share of the frame's contrast its decoder reads: the composite's, or the whole."""
+    share = CARRIER_AMPLITUDE if isinstance(decoder, CompositeDecoder) else 1.0
+    return fringe_mask(image, min_modulation, modulation=cv2.magnitude(out[0], out[1]), carrier_share=share)
 
 
 def fringe_mask(

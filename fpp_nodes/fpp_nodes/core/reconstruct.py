@@ -368,15 +368,11 @@ class CompositeDecoder:
     ) -> tuple[np.ndarray, np.ndarray]:
         """out: (2 + 2 x codes, H, W) the carrier's numerator and denominator, then each code's; fringes:
         the pixels that show fringes (default all). Returns (depth mm, confidence), NaN where unknown."""
-        num, den = (np.ascontiguousarray(c, np.float32) for c in out[:2])
         two_pi = np.float32(2 * np.pi)
-        carrier = cv2.phase(den, num)
-        codes = [
-            cv2.phase(
-                np.ascontiguousarray(out[3 + 2 * i], np.float32), np.ascontiguousarray(out[2 + 2 * i], np.float32)
-            )
-            for i in range(len(COMPOSITE_CODES))
-        ]
+        carrier, *codes = (
+            cv2.phase(np.ascontiguousarray(den, np.float32), np.ascontiguousarray(num, np.float32))
+            for num, den in zip(out[0::2], out[1::2])
+        )
         own = self.code_phase(carrier, codes)
         if fringes is None:
             fringes = np.ones(carrier.shape, bool)
