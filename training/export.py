@@ -29,7 +29,7 @@ from fpp_nodes.core.model import (
     MIN_MODULATION,
     PhaseOrderDecoder,
     decoded_fringes,
-    depth_roughness,
+    local_depth,
     network_input,
     trusted_single_shot,
 )
@@ -53,7 +53,7 @@ SILENT_ERROR_LIMIT = 0.01  # ... and in any one validation scene family (the sin
 CONFIDENCE_GRID = (0.0, 0.25, 0.5, 0.6, 0.7, 0.75, 0.8, 0.82, 0.84, 0.86, 0.88, 0.9, 0.92, 0.95, 0.98, 0.99, 0.999)
 FLOOR_GRID = (0.01, 0.02, 0.03, 0.05)  # the fringe mask's floor: the network's modulation, of full scale
 SURFACE_GRID = (0, 500, 2000)  # the composite decoder's smallest surface (pixels) whose vote counts
-ROUGHNESS_GRID = (0.15, 0.2, 0.25, 0.3, 0.4, np.inf)  # the composite's roughness rule (mm; inf: none)
+ROUGHNESS_GRID = (0.15, 0.2, 0.25, 0.3, 0.4, 0.5, np.inf)  # the composite's roughness rule (mm; inf: none)
 OUTPUTS = {"phase": "fringe_order", "composite": "fringe_phases"}  # other architectures: depth_mm
 
 
@@ -84,10 +84,12 @@ def rule_counts(
                 kept, confidence = decode(out, 0.0, fringes)
                 for s in steps_mm:
                     shown = trusted_single_shot(kept.copy(), image, max_depth_step_mm=s, fringes=fringes)
-                    roughness = depth_roughness(shown)
-                    wrong = np.abs(shown - truth) > 1.0
+                    mean, roughness = local_depth(shown)
                     for r in roughness_mm:
-                        smooth = exact & (roughness <= r) if np.isfinite(r) else exact & np.isfinite(shown)
+                        if np.isfinite(r):  # a roughness limit keeps the window's mean
+                            smooth, wrong = exact & (roughness <= r), np.abs(mean - truth) > 1.0
+                        else:
+                            smooth, wrong = exact & np.isfinite(shown), np.abs(shown - truth) > 1.0
                         for c in confidences:
                             ok = smooth & (confidence >= c)
                             n = counts.setdefault((m, px, c, s, r), {}).setdefault(family, np.zeros(3))

@@ -216,37 +216,53 @@ def trusted_single_shot(
 ) -> np.ndarray:
     """Set a network's depth to NaN (in place) where the image shows no usable fringes, where it
     smears a depth edge (a pixel whose depth differs from a neighbour's by more than max_depth_step_mm,
-    the multi-shot path's flying-pixel rule: a network smooths a depth step across a few pixels), and
-    where the depth around it scatters by more than max_roughness_mm (depth_roughness)."""
+    the multi-shot path's flying-pixel rule: a network smooths a depth step across a few pixels), and,
+    with a roughness limit, where the depth around it scatters by more than max_roughness_mm; the
+    pixels kept then take their window's mean depth (local_depth)."""
     depth[~(fringe_mask(image) if fringes is None else fringes)] = np.nan
     depth[~drop_flying_pixels(depth, max_depth_step_mm)] = np.nan
     if np.isfinite(max_roughness_mm):
-        depth[~(depth_roughness(depth) <= max_roughness_mm)] = np.nan
+        mean, roughness = local_depth(depth)
+        np.copyto(depth, mean)
+        depth[~(roughness <= max_roughness_mm)] = np.nan
     return depth
 
 
-ROUGHNESS_WINDOW = 9  # pixels, the composite decoder's vote window
+ROUGHNESS_WINDOW = CONTRAST_WINDOW  # pixels: one period of the default rig's carrier
 
 
-def depth_roughness(depth: np.ndarray, window: int = ROUGHNESS_WINDOW) -> np.ndarray:
-    """How much a single-shot depth map scatters around each pixel (mm, NaN where it has no depth):
-    the RMS over the window of each depth's difference from its own window's mean, NaN pixels left
-    out. On a smooth surface, tilted or not, that is the network's phase noise through dz/dphi (a
-    plane's depths equal their window's mean); where one image cannot tell the phase well (dark,
-    noisy, textured, blurred) it grows. Without knowing the truth it stands for the multi-shot path's
-    expected depth noise. It understates the error (the network's errors are correlated over its
-    receptive field), so its limit is chosen on validation data."""
+def local_depth(depth: np.ndarray, window: int = ROUGHNESS_WINDOW) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, roughness) of a single-shot depth map over the window around each pixel (mm, NaN where
+    it has no depth; NaN pixels and the outside of the image left out).
+    mean: one image tells the phase of a fringe period, not of a pixel (the window is one carrier
+    period in the default rig), so the window's mean loses little the image holds and halves what the
+    network's noise puts beyond 1 mm (on validation). Beside a hole or the border the window is
+    lopsided and its mean is the depth at the known pixels' centroid, off by up to slope x 2 pixels
+    on a tilted surface; on validation such pixels still come out nearer the truth than unsmoothed
+    (a plane fit, unbiased there, measured about as good for three times the time: docs/single-shot.md).
+    roughness: the RMS over the window of each depth's difference from its own window's mean: on a
+    smooth surface, tilted or not, the network's phase noise through dz/dphi (a plane's depths equal
+    their windows' means); where one image cannot tell the phase well (dark, noisy, textured,
+    blurred) it grows, and a depth step in the window makes it large, so a mean across a step is never
+    kept. It stands for the multi-shot path's expected depth noise; it understates the error (the
+    network's errors are correlated over its receptive field), so its limit is chosen on validation."""
     known = np.isfinite(depth)
     if not known.any():
-        return np.full(depth.shape, np.nan, np.float32)
-    size = (window, window)
-    values = np.where(known, depth - np.float32(np.mean(depth[known])), 0).astype(np.float32)
-    count = np.maximum(cv2.boxFilter(known.astype(np.float32), -1, size, normalize=False), 1)
-    residual = np.where(known, values - cv2.boxFilter(values, -1, size, normalize=False) / count, 0)
-    scatter = cv2.boxFilter(np.square(residual), -1, size, normalize=False) / count
-    roughness = np.sqrt(np.maximum(scatter, 0))  # a running box sum can dip just below 0
+        return np.full(depth.shape, np.nan, np.float32), np.full(depth.shape, np.nan, np.float32)
+
+    def window_sum(image):
+        return cv2.boxFilter(image, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
+
+    offset = np.float32(np.mean(depth[known]))  # box sums of small numbers keep float32's precision
+    values = np.where(known, depth - offset, 0).astype(np.float32)
+    per_pixel = np.float32(1) / np.maximum(window_sum(known.astype(np.float32)), 1)
+    mean = window_sum(values) * per_pixel
+    residual = np.where(known, values - mean, 0)
+    roughness = np.sqrt(np.maximum(window_sum(np.square(residual)) * per_pixel, 0))  # a box sum can dip below 0
+    mean += offset
+    mean[~known] = np.nan
     roughness[~known] = np.nan
-    return roughness
+    return mean, roughness
 
 
 def decoded_fringes(image: np.ndarray, out: np.ndarray, min_modulation: float, decoder) -> np.ndarray:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fpp_nodes.core.calibration import Calibration, CalibrationError
-from fpp_nodes.core.model import depth_roughness
+from fpp_nodes.core.model import local_depth
 from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.phase import PhaseError
 from fpp_nodes.core.reconstruct import CompositeDecoder, order_surfaces
@@ -161,20 +161,25 @@ def test_a_calibration_has_code_models_exactly_with_the_composite(calibration):
     assert old.patterns.single_shot == "paper" and old.patterns.count == 16
 
 
-def test_depth_roughness_is_the_scatter_about_the_neighbourhood():
-    """A tilted plane has none (its depths equal their windows' means); white noise of 0.3 mm reads
-    about 0.3 mm (the window's own mean takes a little); no depth, no roughness; a NaN hole leaves its
-    neighbours' estimate intact."""
+def test_local_depth_is_the_neighbourhood_mean_and_scatter():
+    """A plane tilted by 30 degrees in the default rig (0.14 mm per pixel) is its own mean and has no
+    roughness, except beside a hole or the border: there the mean is the depth at the known pixels'
+    centroid (at most 2 pixels away) and the roughness reads those means' bias (under 0.25 mm).
+    White noise of 0.3 mm reads about 0.3 mm (the window's mean takes a little) and the mean
+    scatters about a ninth as much (81 pixels); no depth, no roughness."""
     v, u = np.mgrid[:120, :160].astype(np.float32)
-    plane = 1200 + 0.8 * u - 0.5 * v
-    rough = depth_roughness(plane)
-    assert np.nanmax(rough[8:-8, 8:-8]) < 1e-3
-    noisy = plane + np.random.default_rng(0).normal(0, 0.3, plane.shape).astype(np.float32)
-    assert np.median(depth_roughness(noisy)) == pytest.approx(0.3, rel=0.1)
-    holed = noisy.copy()
+    plane = 1200 + 0.1 * u - 0.1 * v
+    holed = plane.copy()
     holed[50:60, 50:60] = np.nan
-    rough = depth_roughness(holed)
-    assert np.isnan(rough[55, 55]) and np.median(
-        rough[40:70, 40:70][np.isfinite(rough[40:70, 40:70])]
-    ) == pytest.approx(0.3, rel=0.15)
-    assert np.isnan(depth_roughness(np.full((20, 20), np.nan, np.float32))).all()
+    mean, rough = local_depth(holed)
+    assert np.isnan(rough[55, 55]) and np.isnan(mean[55, 55])
+    inside = np.full(plane.shape, False)
+    inside[4:-4, 4:-4] = True
+    inside[46:64, 46:64] = False
+    assert np.nanmax(np.abs(mean - plane)[inside]) < 1e-3 and np.nanmax(np.abs(mean - plane)) <= 0.1 * 2 * 2 + 1e-3
+    assert np.nanmax(rough[8:-8, 8:-8][:34]) < 1e-3 and np.nanmax(rough) < 0.25
+    noise = np.random.default_rng(0).normal(0, 0.3, plane.shape).astype(np.float32)
+    mean, rough = local_depth(holed + noise)
+    assert np.nanmedian(rough) == pytest.approx(0.3, rel=0.1)
+    assert np.nanstd((mean - plane)[inside]) == pytest.approx(0.3 / 9, rel=0.2)
+    assert all(np.isnan(a).all() for a in local_depth(np.full((20, 20), np.nan, np.float32)))
