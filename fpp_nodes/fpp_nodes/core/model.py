@@ -150,7 +150,10 @@ class DepthModel:
         """(depth mm, confidence) of one fringe image. A phase-aware model's confidence is the
         probability that each pixel's fringe order is right (NaN depth below its threshold; NaN itself
         where the image shows no usable fringes); a depth-regressing model has none."""
-        out = self.outputs(image)
+        return self.decode(image, self.outputs(image))
+
+    def decode(self, image: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """infer's second half: the network's outputs for image -> (depth mm, confidence)."""
         if self.decoder is not None:
             fringes = decoded_fringes(image, out, self.min_modulation, self.decoder)
             depth, confidence = self.decoder(out, 0.0, fringes)  # every pixel whose order its neighbours share

@@ -16,10 +16,16 @@ rejected and counted; a missing, corrupt or mismatched model stops the node at s
 model (path; empty = the shipped default), providers (CPUExecutionProvider; CUDA where present),
 threads (onnxruntime intra-op threads), min_confidence (negative: the model card's), calibration
 (intrinsics for the cloud).
+
+Two frames are in hand at once: the network runs on a frame in the subscription's callback while a
+thread of the node's own decodes the frame before and publishes it, so on 2 cores the network takes
+one (threads 1, the default) and the decoding the other (docs/single-shot.md, the node's speed).
 """
 
 from __future__ import annotations
 
+import queue
+import threading
 import time
 
 import numpy as np
@@ -42,7 +48,9 @@ class CnnDepth(Node):
         super().__init__("cnn_depth", **kwargs)
         path = declare(self, "model", "", "ONNX model with its card beside it (empty: the shipped default)", True)
         providers = declare(self, "providers", ["CPUExecutionProvider"], "onnxruntime execution providers", True)
-        threads = declare(self, "threads", 2, "onnxruntime intra-op threads", True)
+        threads = declare(
+            self, "threads", 1, "onnxruntime intra-op threads (the decoding of the frame before runs beside them)", True
+        )
         min_confidence = declare(
             self,
             "min_confidence",
@@ -85,30 +93,52 @@ class CnnDepth(Node):
             }
         )
         self.get_logger().info(f"model {path} ({card.get('architecture')}), providers {self.model.providers}")
+        # the network's outputs to the decoding thread, once it is done with the frame before: meanwhile
+        # the next frame waits in the subscription, which keeps only the newest
+        self.decoding = queue.Queue()
+        self.decoder_thread = threading.Thread(target=self._decode_frames, name="cnn_depth decoding", daemon=True)
+        self.decoder_thread.start()
 
     def _on_image(self, msg: Image):
         self.health.count("frames in")
-        want_depth = self.depth_pub.get_subscription_count() > 0
-        want_points = self.points_pub.get_subscription_count() > 0
-        want_confidence = self.confidence_pub.get_subscription_count() > 0
-        if not (want_depth or want_points or want_confidence):
+        want = {
+            "depth": self.depth_pub.get_subscription_count() > 0,
+            "points": self.points_pub.get_subscription_count() > 0,
+            "confidence": self.confidence_pub.get_subscription_count() > 0,
+        }
+        if not any(want.values()):
             self.health.count("frames skipped (no subscribers)")
             return
         start = time.perf_counter()
         try:
-            depth_mm, confidence = self.model.infer(image_to_numpy(msg))
+            image = image_to_numpy(msg)
+            out = self.model.outputs(image)
         except (ImageError, ModelError) as e:
             self.health.report("frames rejected", f"image rejected: {e}")
             return
-        if want_depth:
-            self.depth_pub.publish(numpy_to_image(depth_mm * np.float32(0.001), msg.header))
-        if want_confidence and confidence is not None:
-            self.confidence_pub.publish(numpy_to_image(confidence, msg.header))
-        if want_points:
+        self.decoding.join()  # the frame before is published
+        self.decoding.put((msg.header, image, out, want, start))
+
+    def _decode_frames(self):
+        while (frame := self.decoding.get()) is not None:
+            try:
+                self._publish(*frame)
+            except Exception as e:  # a bug must not stop the thread: say so and go on with the next frame
+                self.health.report("frames failed", f"decoding failed: {type(e).__name__}: {e}")
+            finally:
+                self.decoding.task_done()
+
+    def _publish(self, header, image, out, want, start):
+        depth_mm, confidence = self.model.decode(image, out)
+        if want["depth"]:
+            self.depth_pub.publish(numpy_to_image(depth_mm * np.float32(0.001), header))
+        if want["confidence"] and confidence is not None:
+            self.confidence_pub.publish(numpy_to_image(confidence, header))
+        if want["points"]:
             self.points_pub.publish(
-                xyz_to_cloud(back_project(depth_mm, self.calibration.camera) * np.float32(0.001), msg.header)
+                xyz_to_cloud(back_project(depth_mm, self.calibration.camera) * np.float32(0.001), header)
             )
-        self.info.header = msg.header
+        self.info.header = header
         self.info_pub.publish(self.info)
         self.health.count("depth out")
         self.health.latency(time.perf_counter() - start)
@@ -117,7 +147,13 @@ class CnnDepth(Node):
         usable = depth_mm if confidence is None else confidence
         self.health.usable_pixels(np.count_nonzero(np.isfinite(usable)) / usable.size, "frames without fringes")
         if confidence is not None:
-            self.health.facts["depth given (last)"] = f"{np.count_nonzero(np.isfinite(depth_mm)) / depth_mm.size:.1%}"
+            self.health.fact("depth given (last)", f"{np.count_nonzero(np.isfinite(depth_mm)) / depth_mm.size:.1%}")
+
+    def destroy_node(self):
+        if self.decoder_thread.is_alive():
+            self.decoding.put(None)  # after the frame in hand
+            self.decoder_thread.join(timeout=10)
+        return super().destroy_node()
 
 
 def main(args=None):

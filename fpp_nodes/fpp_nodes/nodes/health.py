@@ -10,6 +10,7 @@ the last report.
 from __future__ import annotations
 
 import re
+import threading
 import time
 from collections import Counter, deque
 
@@ -31,31 +32,40 @@ class Health:
         self.facts: dict[str, str] = {}  # what the node runs with: calibration, model
         self.problems: dict[str, str] = {}  # since the previous report: wording (numbers aside) -> latest message
         self.logged: dict[str, float] = {}  # a problem's wording (numbers aside) -> when it was last logged
+        self.lock = threading.RLock()  # a node may count from a thread of its own beside the executor's
         self.publisher = node.create_publisher(DiagnosticArray, TOPIC, 10)
         self.since = time.monotonic()
         node.create_timer(period_s, self.publish)
 
     def count(self, key: str, n: int = 1) -> None:
-        self.totals[key] += n
-        self.window[key] += n
+        with self.lock:
+            self.totals[key] += n
+            self.window[key] += n
 
     def latency(self, seconds: float) -> None:
-        self.latencies_s.append(seconds)
+        with self.lock:
+            self.latencies_s.append(seconds)
+
+    def fact(self, key: str, value: str) -> None:
+        with self.lock:
+            self.facts[key] = value
 
     def report(self, key: str, message: str) -> None:
         """Count a dropped or rejected input under key, say why on /diagnostics and in the log."""
         self.count(key)
         wording, now = re.sub(r"[\d.]+", "#", message), time.monotonic()
-        self.problems.pop(wording, None)
-        self.problems[wording] = message  # newest last
-        if now - self.logged.get(wording, -1e9) >= 5.0:  # each kind of problem at most every 5 s
+        with self.lock:
+            self.problems.pop(wording, None)
+            self.problems[wording] = message  # newest last
+            if now - self.logged.get(wording, -1e9) < 5.0:  # each kind of problem at most every 5 s
+                return
             self.logged[wording] = now
-            self.node.get_logger().warn(message)
+        self.node.get_logger().warn(message)
 
     def usable_pixels(self, share: float, key: str) -> None:
         """Note the share of pixels an output could use; (almost) none is a problem counted under key.
         The output goes out all the same: a robot should see nothing rather than old data."""
-        self.facts["usable pixels (last)"] = f"{share:.1%}"
+        self.fact("usable pixels (last)", f"{share:.1%}")
         if share < FEW_USABLE:
             self.report(key, f"only {share:.2%} of pixels show usable fringes (dark, saturated or out of focus?)")
 
@@ -81,9 +91,10 @@ class Health:
     def publish(self) -> None:
         """Publish the report and start the next window."""
         now = time.monotonic()
-        msg = DiagnosticArray(status=[self.status(now)])
+        with self.lock:
+            msg = DiagnosticArray(status=[self.status(now)])
+            self.window.clear()
+            self.problems.clear()
+            self.since = now
         msg.header.stamp = self.node.get_clock().now().to_msg()
         self.publisher.publish(msg)
-        self.window.clear()
-        self.problems.clear()
-        self.since = now

@@ -192,6 +192,39 @@ def test_no_work_for_outputs_nobody_subscribes_to(ros_graph):
     depth_node.destroy_node()
 
 
+def test_cnn_depth_decodes_one_frame_while_the_next_runs_through_the_network(ros_graph):
+    """cnn_depth in this process, two frames in hand at once (its thread decodes one while the
+    executor's runs the next through the network): frames of two scenes in turn, each sent as soon as
+    the one before is in hand, come back in order, each with its own scene's depth."""
+    from fpp_nodes.nodes.cnn_depth import CnnDepth
+
+    _, robot = ros_graph
+    node = CnnDepth(context=robot.context)
+    robot.executor.add_node(node)
+    rig = Rig()
+    patterns = rig.pattern_set()
+    scenes = [render(rig, make_scene(rig, "objects", s), patterns, np.random.default_rng(s)) for s in (1, 2)]
+    camera_pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
+    depths = collect(robot, Topics.DEPTH, Image)
+    assert robot.spin_until(lambda: camera_pub.get_subscription_count() and node.depth_pub.get_subscription_count(), 30)
+    sent = [1_000_000_000 + k * 1_000_000 for k in range(12)]
+    for k, t in enumerate(sent):
+        camera_pub.publish(
+            numpy_to_image(scenes[k % 2].images[patterns.single_shot_index], header_at(t, Frames.CAMERA))
+        )
+        robot.spin_until(lambda: False, 0.005)
+    assert robot.spin_until(lambda: len(depths) == len(sent), 60)
+    back = [stamp_ns(d.header.stamp) for d in depths]
+    assert back == sent
+    for d in depths:
+        truth = scenes[sent.index(stamp_ns(d.header.stamp)) % 2].depth_mm
+        error = image_to_numpy(d) * 1000.0 - truth
+        assert np.nanmedian(np.abs(error)) < 0.1
+    robot.executor.remove_node(node)
+    node.destroy_node()
+    assert not node.decoder_thread.is_alive()
+
+
 def test_main_job_writes_clouds_and_reports(tmp_path):
     """`ros2 run fpp_nodes demo` (what `make demo` runs) on its own domain."""
     import subprocess
