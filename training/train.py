@@ -63,6 +63,7 @@ class TrainConfig:
     limit: int = 0  # use only the first N training samples (0: all)
     crop: int = 0  # train on random square crops of this size (0: whole images); composite only
     workers: int = 0  # data-loading processes (worth it beside a GPU)
+    init: str = ""  # start from this checkpoint's weights (same architecture; optimizer and epochs afresh)
     seed: int = 0
 
     def __post_init__(self):
@@ -202,10 +203,18 @@ def reseed_worker(_):
     info.dataset.rng = np.random.default_rng(info.seed)
 
 
+PHASE_LOSS_FLOOR = 0.02  # full scale: the shipped fringe floor; darker labels weigh as this one
+
+
 def composite_loss(pred, targets):
-    """Squared error of the numerators/denominators over the pixels whose label is trusted."""
+    """Squared error of the numerators/denominators over the pixels whose label is trusted, each
+    divided by the carrier's squared amplitude B^2 (at least PHASE_LOSS_FLOOR^2): a vector error e
+    moves the phase by about e / B, and the phase is what the depth comes from, so a dark surface's
+    fringes count as much as a bright one's."""
     valid = torch.isfinite(targets).all(dim=1)
-    return 1000.0 * ((pred - targets.nan_to_num()) ** 2).sum(dim=1)[valid].mean()
+    targets = targets.nan_to_num()
+    amplitude = torch.hypot(targets[:, 0], targets[:, 1]).clamp(min=PHASE_LOSS_FLOOR)
+    return 10.0 * (((pred - targets) ** 2).sum(dim=1) / amplitude**2)[valid].mean()
 
 
 LOG_SIGMA_RANGE = (np.log(0.01), np.log(30.0))  # orders
@@ -408,6 +417,8 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, factor=0.5, patience=config.patience)
     history, start_epoch, seconds = [], 0, 0.0
+    if config.init and not resume:
+        model.load_state_dict(load_checkpoint(config.init)["model"])
     if resume:
         ckpt = load_checkpoint(resume)
         model.load_state_dict(ckpt["model"])
