@@ -325,6 +325,24 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
             batch_size=4,
         )
     )
+    # a second stage starts from the first's weights (at a rate too small to move them here)
+    first = load_checkpoint(tmp_path / "run" / "last.pt")["model"]
+    train(
+        TrainConfig(
+            data=str(data),
+            out=str(tmp_path / "more"),
+            arch="composite",
+            width=4,
+            downsample=1,
+            epochs=1,
+            crop=160,
+            batch_size=4,
+            lr=1e-12,
+            init=str(tmp_path / "run" / "last.pt"),
+        )
+    )
+    second = load_checkpoint(tmp_path / "more" / "last.pt")["model"]
+    assert all(torch.allclose(first[k], second[k], atol=1e-6) for k in first)
     write_set(tmp_path / "data", "composite", counts=(3, 1, 1), workers=1)  # the set grows after training
     card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m.onnx"))
     assert card["training"]["counts"] == {"train": 2, "val": 1, "test": 1}  # what it learned from
