@@ -4,6 +4,7 @@ checkpoints, torchrun with two CPU processes, ONNX export and parity, the model 
 import pickle
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -313,34 +314,20 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     data = write_set(tmp_path / "data", "composite", counts=(2, 1, 1), workers=1)
     with np.load(split_files(data, "train")[0]) as z:
         assert z["code"].shape == (4, 480, 640) and str(z["family"]) == "bust"  # two code gratings
-    train(
-        TrainConfig(
-            data=str(data),
-            out=str(tmp_path / "run"),
-            arch="composite",
-            width=4,
-            downsample=1,
-            epochs=1,
-            crop=160,
-            batch_size=4,
-        )
+    config = TrainConfig(
+        data=str(data),
+        out=str(tmp_path / "run"),
+        arch="composite",
+        width=4,
+        downsample=1,
+        epochs=1,
+        crop=160,
+        batch_size=4,
     )
+    train(config)
     # a second stage starts from the first's weights (at a rate too small to move them here)
     first = load_checkpoint(tmp_path / "run" / "last.pt")["model"]
-    train(
-        TrainConfig(
-            data=str(data),
-            out=str(tmp_path / "more"),
-            arch="composite",
-            width=4,
-            downsample=1,
-            epochs=1,
-            crop=160,
-            batch_size=4,
-            lr=1e-12,
-            init=str(tmp_path / "run" / "last.pt"),
-        )
-    )
+    train(replace(config, out=str(tmp_path / "more"), lr=1e-12, init=str(tmp_path / "run" / "last.pt")))
     second = load_checkpoint(tmp_path / "more" / "last.pt")["model"]
     assert all(torch.allclose(first[k], second[k], atol=1e-6) for k in first)
     write_set(tmp_path / "data", "composite", counts=(3, 1, 1), workers=1)  # the set grows after training
