@@ -212,7 +212,7 @@ def test_cnn_depth_decodes_one_frame_while_the_next_runs_through_the_network(ros
         camera_pub.publish(
             numpy_to_image(scenes[k % 2].images[patterns.single_shot_index], header_at(t, Frames.CAMERA))
         )
-        robot.spin_until(lambda: False, 0.005)
+        assert robot.spin_until(lambda: node.health.totals["frames in"] == k + 1, 30)
     assert robot.spin_until(lambda: len(depths) == len(sent), 60)
     back = [stamp_ns(d.header.stamp) for d in depths]
     assert back == sent
