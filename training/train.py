@@ -203,7 +203,7 @@ def reseed_worker(_):
     info.dataset.rng = np.random.default_rng(info.seed)
 
 
-PHASE_LOSS_FLOOR = 0.02  # full scale: the shipped fringe floor; darker labels weigh as this one
+PHASE_LOSS_FLOOR = 0.02  # full scale: darker labels weigh as this one (the fringe floor export had chosen)
 
 
 def composite_loss(pred, targets):

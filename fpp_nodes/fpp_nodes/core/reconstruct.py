@@ -382,8 +382,7 @@ class CompositeDecoder:
         agree = (np.abs(own - local) < np.pi) & fringes
         vote = cv2.boxFilter(agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW), borderType=cv2.BORDER_REPLICATE)
         surface, size = order_surfaces(local, fringes)
-        agreeing = np.bincount(surface[agree], minlength=size.size)
-        share = (agreeing / np.maximum(size, 1)).astype(np.float32)
+        share = (np.bincount(surface[agree], minlength=size.size) / np.maximum(size, 1)).astype(np.float32)
         share[0] = 0  # label 0: beside a step, on no surface
         share[size < self.min_surface_px] = 0
         confidence = np.minimum(vote, np.take(share, surface))
