@@ -1,6 +1,7 @@
 """ONNX export with a parity check, and the model card beside the model.
 
     python -m training.export runs/unet/best.pt --out fpp_nodes/fpp_nodes/data/models/unet.onnx
+    python -m training.export runs/gpu/best.pt --out model.onnx --data data/fpp/composite
 
 The ONNX model has one input, `image` (float32, N x 1 x H x W, the camera image / full scale, at 1/
 downsample of the camera's resolution, H and W multiples of 32) and one output, `depth_mm`
@@ -162,9 +163,14 @@ def choose_decoding(model, data: str, decoder, limit: int = 200) -> dict:
     }
 
 
-def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | None = None) -> dict:
+def export(
+    checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | None = None, data: str | None = None
+) -> dict:
+    """data: a set of the same rig, whose calibration goes on the card and whose validation split chooses
+    a phase-aware model's rules (default: the set it trained on)."""
     ckpt = load_checkpoint(checkpoint)
     model, cfg = model_from_checkpoint(ckpt)
+    data = Path(data or cfg.data)
     phase_aware = cfg.arch in OUTPUTS
     output = OUTPUTS.get(cfg.arch, "depth_mm")
     out = Path(out)
@@ -189,11 +195,7 @@ def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | No
     session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
     got = session.run([output], {"image": probe.numpy()})[0]
     np.testing.assert_allclose(got, expected, atol=PARITY_TOLERANCE_MM, rtol=0)
-    dataset = (
-        yaml.safe_load((Path(cfg.data) / "dataset.yaml").read_text())
-        if (Path(cfg.data) / "dataset.yaml").exists()
-        else {}
-    )
+    dataset = yaml.safe_load((data / "dataset.yaml").read_text()) if (data / "dataset.yaml").exists() else {}
     last = ckpt["history"][-1] if ckpt["history"] else {}
     calibration = dataset.get("calibration")
     patterns = PatternSet.from_dict(calibration["patterns"]) if calibration else None
@@ -252,7 +254,7 @@ def export(checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | No
             card["decoding"] = {"depth_range_mm": list(SURFACE_DEPTH_MM)}
         else:
             decoder, card["decoding"] = PhaseOrderDecoder(Calibration.from_dict(calibration)), {}
-        card["decoding"].update(choose_decoding(model, cfg.data, decoder))
+        card["decoding"].update(choose_decoding(model, str(data), decoder))
     out.with_suffix(".yaml").write_text(yaml.safe_dump(card, sort_keys=False))
     return card
 
@@ -263,8 +265,9 @@ def main(argv=None):
     )
     parser.add_argument("checkpoint")
     parser.add_argument("--out", required=True)
+    parser.add_argument("--data", help="the set whose validation split chooses the rules (default: the training set)")
     args = parser.parse_args(argv)
-    card = export(args.checkpoint, args.out)
+    card = export(args.checkpoint, args.out, data=args.data)
     print(
         f"wrote {args.out} ({card['parameters']} parameters, sha256 {card['sha256'][:12]}...) and its card; "
         f"parity at {card['parity']['size']}: {card['parity']['max_abs_diff_mm']:.2e} mm"

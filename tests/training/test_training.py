@@ -351,6 +351,11 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     sure = confidence[np.isfinite(confidence)]
     assert sure.size and sure.min() >= 0 and sure.max() <= 1
     assert np.all(np.isnan(depth[~(confidence >= model.min_confidence)]))
+    # trained elsewhere (a GPU machine's set is gone): the rules and calibration come from a set here
+    moved = data.rename(tmp_path / "here")
+    card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m2.onnx"), data=str(moved))
+    assert card["decoding"]["chosen_on"].startswith(str(moved)) and card["training"]["data"] == str(data)
+    assert card["calibration"]["camera"]["width"] == 640
 
 
 def test_the_code_comparison_measures_margins_as_the_decoder_does():
