@@ -73,9 +73,8 @@ paper-model: setup
 # The shipped default single-shot model (fpp_nodes/fpp_nodes/data/models/composite.onnx + card): the
 # composite data set (scene families across the working volume, the composite single-shot frame; held-out
 # families in the test split only), the fringe-analysing network on 160-pixel crops (stopped on 40
-# validation scenes), 30 more epochs from its best at a quarter of the rate (the shipped model's first
-# 90 epochs had the loss before it was weighted by 1 / B^2: docs/single-shot.md), export with its
-# rules chosen on 200 validation scenes, the per-family table (with FTP on the same composite images),
+# validation scenes), 30 more epochs from its best at a quarter of the rate, export with its rules
+# chosen on 200 validation scenes (the shipped model is this recipe run end to end, about 65 minutes), the per-family table (with FTP on the same composite images),
 # and the failure cases beside the paper's UNet.
 COMPOSITE_EPOCHS ?= 90
 .PHONY: composite-model
