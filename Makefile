@@ -74,8 +74,9 @@ paper-model: setup
 # composite data set (scene families across the working volume, the composite single-shot frame; held-out
 # families in the test split only), the fringe-analysing network on 160-pixel crops (stopped on 40
 # validation scenes), 30 more epochs from its best at a quarter of the rate, export with its rules
-# chosen on 200 validation scenes (the shipped model is this recipe run end to end, about 65 minutes), the per-family table (with FTP on the same composite images),
-# and the failure cases beside the paper's UNet.
+# chosen on 200 validation scenes, the per-family table (with FTP on the same composite images) and
+# the failure cases beside the paper's UNet. The shipped model is this recipe run end to end (about
+# 65 minutes on 2 cores).
 COMPOSITE_EPOCHS ?= 90
 .PHONY: composite-model
 composite-model: setup
