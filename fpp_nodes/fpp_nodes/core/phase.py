@@ -31,8 +31,17 @@ def _work_dtype(images) -> type:
 
 
 def _weighted_sum(images: np.ndarray, weights: np.ndarray, dtype) -> np.ndarray:
-    """sum_j w_j I_j in one pass per pair of images (cv2 converts and accumulates without temporaries)."""
-    terms = [(images[j], float(w)) for j, w in enumerate(weights) if abs(w) > 1e-12]
+    """sum_j w_j I_j in one pass per pair of images (cv2 converts and accumulates without temporaries);
+    integer images with weights of +-1 (every sum of 4 steps) add up exactly in integers, then convert
+    once: twice as fast."""
+    terms = [(np.ascontiguousarray(images[j]), float(w)) for j, w in enumerate(weights) if abs(w) > 1e-12]
+    if images.dtype.kind in "ui" and all(abs(abs(w) - 1) < 1e-12 for _, w in terms):
+        wide = np.int16 if images.dtype.itemsize == 1 and len(terms) <= 128 else np.int64
+        (first, sign), *rest = terms
+        total = first.astype(wide) if sign > 0 else np.negative(first, dtype=wide)
+        for image, sign in rest:
+            (np.add if sign > 0 else np.subtract)(total, image, out=total)
+        return total.astype(dtype)
     depth = cv2.CV_64F if dtype == np.float64 else cv2.CV_32F
     total = None
     for k in range(0, len(terms), 2):
@@ -52,7 +61,6 @@ def phase_sums(images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise PhaseError(f"images must be real numbers, got {images.dtype}")
     if images.dtype.kind == "f" and images.dtype != np.float64:
         images = images.astype(np.float32, copy=False)
-    images = np.ascontiguousarray(images)
     delta = TWO_PI * np.arange(images.shape[0]) / images.shape[0]
     dtype = _work_dtype(images)
     return _weighted_sum(images, -np.sin(delta), dtype), _weighted_sum(images, np.cos(delta), dtype)
@@ -82,9 +90,12 @@ def wrapped_phase(images: np.ndarray) -> np.ndarray:
 def phase_and_modulation(images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Wrapped phase and modulation B = (2/N) sqrt(S^2 + C^2) of N phase-shifted images."""
     y, x = phase_sums(images)
-    modulation = cv2.magnitude(y, x)
+    if y.dtype == np.float32:  # both in one pass, the angle exactly cv2.phase's
+        modulation, phase = cv2.cartToPolar(x, y)
+    else:
+        modulation, phase = cv2.magnitude(y, x), angle(y, x)
     modulation *= 2.0 / images.shape[0]
-    return angle(y, x), modulation
+    return phase, modulation
 
 
 def phase_shift(images: np.ndarray) -> PhaseMaps:
@@ -139,16 +150,17 @@ def unwrap_temporal(wrapped: list[np.ndarray], frequencies, max_residual: float 
         raise PhaseError(f"{len(wrapped)} wrapped phase maps for {len(frequencies)} frequencies")
     if frequencies[0] != 1:
         raise PhaseError(f"temporal unwrapping starts from one fringe, got first frequency {frequencies[0]}")
-    phase = wrapped[0]
-    consistent = np.ones(phase.shape, np.uint8)  # 1 & 255 (inRange's yes) stays 1: a valid bool view
+    phase, worst = wrapped[0], None
     for f_prev, f, phase_w in zip(frequencies, frequencies[1:], wrapped[1:]):
         # (phi_{i-1} f_i/f_{i-1} - phi_i^w) / 2 pi: the order, and the residual, in cycles
         cycles = cv2.addWeighted(phase, f / f_prev / TWO_PI, phase_w, -1.0 / TWO_PI, 0.0)
         order = np.rint(cycles)
-        agrees = cv2.compare(cv2.absdiff(cycles, order), max_residual / TWO_PI, cv2.CMP_LE)
-        cv2.bitwise_and(consistent, agrees, dst=consistent)
+        residual = cv2.absdiff(cycles, order)
+        worst = residual if worst is None else cv2.max(worst, residual)
         phase = cv2.scaleAdd(order, TWO_PI, phase_w)
-    return phase, consistent.view(bool)
+    if worst is None:
+        return phase, np.ones(phase.shape, bool)
+    return phase, worst <= np.float32(max_residual / TWO_PI)
 
 
 def unwrap_spatial(wrapped: np.ndarray) -> np.ndarray:

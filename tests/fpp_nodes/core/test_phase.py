@@ -43,6 +43,23 @@ def test_eight_bit_images_give_float32_phase_within_rounding():
     assert angle_error(est, phi).max() < 0.008
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+@pytest.mark.parametrize("n", [4, 6])
+def test_integer_images_decode_as_their_values_do(dtype, n):
+    """Integer images (at N = 4 summed in integers, else by cv2), also as rows of a larger stack, give
+    the phase and modulation their values give in float64."""
+    rng = np.random.default_rng(n)
+    phi = rng.uniform(0, TWO_PI, (60, 80))
+    top = np.iinfo(dtype).max
+    images = np.rint(fringes(phi, 0.5 * top, 0.45 * top, n)).astype(dtype)
+    exact = phase_shift(images.astype(np.float64))
+    for stack in (images, images[:, 10:50]):  # the second: rows of each image, not one block of memory
+        got = phase_shift(stack)
+        rows = slice(0, 60) if stack is images else slice(10, 50)
+        assert angle_error(got.phase, exact.phase[rows]).max() < 2e-4  # cv2's angle
+        np.testing.assert_allclose(got.modulation, exact.modulation[rows], rtol=1e-6)
+
+
 @pytest.mark.parametrize("n", [4, 6])
 def test_phase_noise_is_what_the_images_noise_makes(n):
     """sqrt(2/N) sigma / B, estimated from the images alone, and it is the phase error they really have."""
