@@ -76,7 +76,7 @@ paper-model: setup
 # validation scenes), 30 more epochs from its best at a quarter of the rate, export with its rules
 # chosen on 200 validation scenes, the per-family table (with FTP on the same composite images) and
 # the failure cases beside the paper's UNet. The shipped model is this recipe run end to end (about
-# 65 minutes on 2 cores).
+# 75 minutes on 2 cores).
 COMPOSITE_EPOCHS ?= 90
 .PHONY: composite-model
 composite-model: setup
