@@ -205,7 +205,7 @@ class CompositeNet(nn.Module):
     fringe periods around the pixel (stride-2 features, dilated convolutions for about 40 pixels,
     a pixel shuffle back to full resolution), with a context branch at 1/8 resolution that sees about
     150 pixels around (what the image's texture is, beyond one fringe period: on validation it lowered
-    the loss by a tenth and raised the coverage by 1.5 points, docs/single-shot.md). It learns to read
+    the loss by a tenth and raised the coverage by 0.9-1.5 points, docs/single-shot.md). It learns to read
     fringes, not scenes: the fringe order and the depth follow from physics
     (fpp_nodes.core.model.CompositeDecoder).
     Output (B, 2 x gratings, H, W): carrier numerator, denominator, then each code's (the composite's
