@@ -68,16 +68,15 @@ def full_scale(dtype) -> float:
 def drop_flying_pixels(depth: np.ndarray, max_step: float) -> np.ndarray:
     """Mask of pixels whose depth is within max_step of all finite 4-neighbours."""
     depth = np.asarray(depth, np.float32)
-    jump_x = cv2.compare(cv2.absdiff(depth[:, 1:], depth[:, :-1]), max_step, cv2.CMP_GT)  # NaN: no jump
-    jump_y = cv2.compare(cv2.absdiff(depth[1:, :], depth[:-1, :]), max_step, cv2.CMP_GT)
-    jumps = np.zeros(depth.shape, np.uint8)
-    for jump, one, other in (
-        (jump_x, (slice(None), slice(1, None)), (slice(None), slice(None, -1))),
-        (jump_y, (slice(1, None), slice(None)), (slice(None, -1), slice(None))),
-    ):
-        cv2.bitwise_or(jumps[one], jump, dst=jumps[one])
-        cv2.bitwise_or(jumps[other], jump, dst=jumps[other])
-    return np.isfinite(depth) & (jumps == 0)
+    # numpy compares: cv2.compare on float32 took 10 ms a frame with OpenCV 4.13 on an AVX2 CPU (make bench)
+    jump_x = np.greater(cv2.absdiff(depth[:, 1:], depth[:, :-1]), max_step)  # NaN: no jump
+    jump_y = np.greater(cv2.absdiff(depth[1:], depth[:-1]), max_step)
+    steady = np.isfinite(depth)
+    steady[:, 1:] &= ~jump_x
+    steady[:, :-1] &= ~jump_x
+    steady[1:] &= ~jump_y
+    steady[:-1] &= ~jump_y
+    return steady
 
 
 def multi_frequency_phase(images: np.ndarray, patterns: PatternSet, limits: QualityLimits = QualityLimits()):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from fpp_nodes.core.metrics import depth_errors
-from fpp_nodes.core.reconstruct import PspReconstructor, QualityLimits, reconstruct_ftp
+from fpp_nodes.core.reconstruct import PspReconstructor, QualityLimits, drop_flying_pixels, reconstruct_ftp
 from fpp_nodes.core.scenes import make_scene, plane_scene
 from fpp_nodes.core.simulation import render
 from fpp_nodes.core.workflow import fringe_depth_mm, held_out_scenes, score
@@ -160,3 +160,15 @@ def test_the_shipped_single_shot_model_is_not_silently_wrong_where_the_papers_un
         if model == "shipped":
             assert cover >= 0.85 and silent <= 0.005, rows
     assert rows["plane tilted 15 deg", "paper"][0] > 0.5 and rows["plane tilted 15 deg", "paper"][1] > 0.99, rows
+
+
+def test_flying_pixels_are_both_sides_of_a_step_and_unknown_is_no_step():
+    depth = np.full((5, 6), 1200.0, np.float32)
+    depth[:, 3:] += 3.0  # a 3 mm step between columns 2 and 3
+    depth[0, 0] = np.nan
+    depth[4, 4] += 1.0  # 1 mm from its neighbours: kept
+    kept = drop_flying_pixels(depth, 2.0)
+    assert not kept[:, 2:4].any()  # both sides of the step
+    assert not kept[0, 0]  # no depth, nothing to keep
+    assert kept[:, [0, 1, 4, 5]][1:].all() and kept[0, 1]  # a NaN neighbour is no jump
+    assert drop_flying_pixels(depth, 3.0)[:, 2:4].all()  # a step of exactly max_step stays
