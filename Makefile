@@ -84,9 +84,9 @@ composite-model: setup
 	$(PY) -m training.train --data data/fpp/composite --arch composite --width 16 --downsample 1 --crop 160 \
 	  --batch-size 8 --patience 4 --epochs $(COMPOSITE_EPOCHS) --out runs/composite
 	$(PY) -m training.train --data data/fpp/composite --arch composite --width 16 --downsample 1 --crop 160 \
-	  --batch-size 8 --patience 4 --epochs 30 --lr 2.5e-4 --init runs/composite/best.pt --out runs/composite_phase_loss
+	  --batch-size 8 --patience 4 --epochs 30 --lr 2.5e-4 --init runs/composite/best.pt --out runs/composite_finetune
 	$(PY) -m training.dataset --out data/fpp --set composite --counts 360,200,120  # 160 more validation scenes for the rules
-	$(PY) -m training.export runs/composite_phase_loss/best.pt --out fpp_nodes/fpp_nodes/data/models/composite.onnx
+	$(PY) -m training.export runs/composite_finetune/best.pt --out fpp_nodes/fpp_nodes/data/models/composite.onnx
 	$(PY) -m training.evaluate --data data/fpp/composite --families fpp_nodes/fpp_nodes/data/models/composite.onnx
 	$(PY) -m training.figures --failures --out docs/pictures fpp_nodes/fpp_nodes/data/models/composite.onnx \
 	  fpp_nodes/fpp_nodes/data/models/unet.onnx
