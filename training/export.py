@@ -32,6 +32,7 @@ from fpp_nodes.core.model import (
     decoded_fringes,
     local_depth,
     network_input,
+    pixel_shuffle,
     trusted_single_shot,
 )
 from fpp_nodes.core.patterns import PatternSet
@@ -163,6 +164,17 @@ def choose_decoding(model, data: str, decoder, limit: int = 200) -> dict:
     }
 
 
+class HalfResolution(torch.nn.Module):
+    """A CompositeNet without its last pixel shuffle (what its ONNX file holds)."""
+
+    def __init__(self, net):
+        super().__init__()
+        self.net = net
+
+    def forward(self, image):
+        return self.net.half_resolution(image)
+
+
 def export(
     checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | None = None, data: str | None = None
 ) -> dict:
@@ -176,10 +188,11 @@ def export(
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     example = torch.rand(1, 1, 480 // cfg.downsample // 32 * 32, 640 // cfg.downsample // 32 * 32)
+    shuffle = 2 if cfg.arch == "composite" else 1  # the composite's last pixel shuffle runs in DepthModel
     warnings.filterwarnings("ignore", "You are using the legacy TorchScript-based ONNX export", DeprecationWarning)
     # dynamo=False: the TorchScript exporter gives plain dynamic height/width for this fully convolutional net
     torch.onnx.export(
-        model,
+        HalfResolution(model) if shuffle > 1 else model,
         (example,),
         str(out),
         dynamo=False,
@@ -194,6 +207,7 @@ def export(
         expected = model(probe).numpy()
     session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
     got = session.run([output], {"image": probe.numpy()})[0]
+    got = pixel_shuffle(got[0], shuffle)[None] if shuffle > 1 else got
     np.testing.assert_allclose(got, expected, atol=PARITY_TOLERANCE_MM, rtol=0)
     dataset = yaml.safe_load((data / "dataset.yaml").read_text()) if (data / "dataset.yaml").exists() else {}
     last = ckpt["history"][-1] if ckpt["history"] else {}
@@ -224,7 +238,9 @@ def export(
             if cfg.arch == "phase"
             else {
                 "name": output,
-                "channels": "carrier numerator, denominator, then each code grating's (full-scale units)",
+                "channels": "carrier numerator, denominator, then each code grating's (full-scale units), "
+                "each as 4 channels at half resolution to pixel-shuffle",
+                "pixel_shuffle": shuffle,
             }
             if cfg.arch == "composite"
             else {"name": output, "units": "mm along the camera's optical axis"}

@@ -41,7 +41,7 @@ def main():
     outputs = []  # (image, exact depth, network outputs, family), run once
     for f in files:
         image, _, truth = load_sample(f)
-        outputs.append((image, truth, model.outputs(image), sample_family(f)))
+        outputs.append((image, truth, model.output_channels(model.outputs(image)), sample_family(f)))
     floor, surface, rough = model.min_modulation, model.decoder.min_surface_px, (model.max_roughness_mm,)
     counts = rule_counts(outputs, model.decoder, (floor,), CONFIDENCES, STEPS_MM, (surface,), rough)
     counts.update(

@@ -13,7 +13,7 @@ import torch
 import yaml
 
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
-from fpp_nodes.core.model import DepthModel, ModelError
+from fpp_nodes.core.model import DepthModel, ModelError, pixel_shuffle
 from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
 from fpp_nodes.core.simulation import Rig
@@ -26,6 +26,7 @@ from training.export import (
     SILENT_ERROR_BUDGET,
     SILENT_ERROR_LIMIT,
     SURFACE_GRID,
+    HalfResolution,
     export,
     rule_name,
 )
@@ -160,7 +161,7 @@ def test_a_model_for_another_composite_is_refused(tmp_path):
 
     path = tmp_path / "one_code.onnx"
     torch.onnx.export(
-        CompositeNet(4, gratings=2).eval(),
+        HalfResolution(CompositeNet(4, gratings=2).eval()),
         (torch.zeros(1, 1, 64, 64),),
         str(path),
         dynamo=False,
@@ -171,9 +172,17 @@ def test_a_model_for_another_composite_is_refused(tmp_path):
     )
     card = yaml.safe_load(Path(default_model_path()).with_suffix(".yaml").read_text())
     card.update(model=path.name, sha256=hashlib.sha256(path.read_bytes()).hexdigest())
+    card["output"]["pixel_shuffle"] = 2
     path.with_suffix(".yaml").write_text(yaml.safe_dump(card))
     with pytest.raises(ModelError, match="4 channels: it was trained for another composite pattern"):
         DepthModel(path)
+
+
+@pytest.mark.parametrize("r, shape", [(2, (24, 5, 7)), (3, (18, 4, 6))])
+def test_the_models_pixel_shuffle_is_torchs(r, shape):
+    x = np.random.default_rng(r).random(shape, dtype=np.float32)
+    expected = torch.nn.functional.pixel_shuffle(torch.from_numpy(x)[None], r)[0].numpy()
+    np.testing.assert_array_equal(pixel_shuffle(x, r), expected)
 
 
 def test_evaluate_prints_table_1(trained, tiny_set):
@@ -334,6 +343,7 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m.onnx"))
     assert card["training"]["counts"] == {"train": 2, "val": 1, "test": 1}  # what it learned from
     assert card["output"]["name"] == "fringe_phases" and card["input"]["content"] == "single-shot composite"
+    assert card["output"]["pixel_shuffle"] == 2  # the ONNX file ends before it (parity checked through it)
     assert card["decoding"]["depth_range_mm"] == [1000.0, 1350.0] and "val" in card["decoding"]["chosen_on"]
     model = DepthModel(tmp_path / "m.onnx", threads=1)
     assert model.reads == "composite"

@@ -81,6 +81,8 @@ class DepthModel:
             raise ModelError(f"cannot load model {path}: {str(e).splitlines()[0]}") from None
         self.providers = self.session.get_providers()
         self.output = self.session.get_outputs()[0].name
+        # an output at 1/r of the input's resolution with r^2 times the channels, shuffled here (export)
+        self.shuffle = int((self.card.get("output") or {}).get("pixel_shuffle", 1))
         self.decoder = None
         if self.output in ("fringe_order", "fringe_phases"):  # a phase-aware model: its card holds its calibration
             try:
@@ -106,7 +108,8 @@ class DepthModel:
                 ) from None
             if self.downsample != 1:
                 raise ModelError(f"model card {card_path}: a phase-aware model runs at full resolution")
-            channels, expected = self.session.get_outputs()[0].shape[1], 2 + 2 * len(COMPOSITE_CODES)
+            channels = self.session.get_outputs()[0].shape[1] // self.shuffle**2
+            expected = 2 + 2 * len(COMPOSITE_CODES)
             if self.output == "fringe_phases" and channels != expected:
                 raise ModelError(
                     f"model {path} gives {channels} channels: it was trained for another composite pattern "
@@ -137,14 +140,21 @@ class DepthModel:
         return self.infer(image)[0]
 
     def outputs(self, image: np.ndarray) -> np.ndarray:
-        """The network's raw output channels for one fringe image, at its input's resolution."""
+        """The network's raw output for one fringe image (decode's input), as the session gives it:
+        padded to the stride, and at 1/pixel_shuffle of the resolution where the card says so."""
         self.check(image)
         x = network_input(image)
         w, h = self.size[0] // self.downsample, self.size[1] // self.downsample
         if self.downsample > 1:
             x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA)
         x = cv2.copyMakeBorder(x, 0, (-h) % STRIDE, 0, (-w) % STRIDE, cv2.BORDER_REPLICATE)
-        return self.session.run([self.output], {"image": x[None, None]})[0][0, :, :h, :w]
+        return self.session.run([self.output], {"image": x[None, None]})[0][0]
+
+    def output_channels(self, raw: np.ndarray) -> np.ndarray:
+        """outputs' channels at the network input's resolution (shuffled here, not in the network thread
+        of cnn_depth, whose time bounds the frame rate)."""
+        w, h = self.size[0] // self.downsample, self.size[1] // self.downsample
+        return (pixel_shuffle(raw, self.shuffle) if self.shuffle > 1 else raw)[:, :h, :w]
 
     def infer(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(depth mm, confidence) of one fringe image. A phase-aware model's confidence is the
@@ -152,8 +162,9 @@ class DepthModel:
         where the image shows no usable fringes); a depth-regressing model has none."""
         return self.decode(image, self.outputs(image))
 
-    def decode(self, image: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """infer's second half: the network's outputs for image -> (depth mm, confidence)."""
+    def decode(self, image: np.ndarray, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """infer's second half: the network's raw outputs for image -> (depth mm, confidence)."""
+        out = self.output_channels(raw)
         if self.decoder is not None:
             fringes = decoded_fringes(image, out, self.min_modulation, self.decoder)
             depth, confidence = self.decoder(out, 0.0, fringes)  # every pixel whose order its neighbours share
@@ -162,6 +173,18 @@ class DepthModel:
             return depth, confidence
         depth = cv2.resize(out[0], self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else out[0]
         return trusted_single_shot(depth, image), None
+
+
+def pixel_shuffle(x: np.ndarray, r: int) -> np.ndarray:
+    """torch's PixelShuffle: (C r^2, H, W) -> (C, H r, W r), out[c, h r + i, w r + j] = x[c r^2 + i r + j, h, w],
+    as r^2 strided copies."""
+    c, h, w = x.shape[0] // (r * r), x.shape[1], x.shape[2]
+    out = np.empty((c, h * r, w * r), x.dtype)
+    tiles, groups = out.reshape(c, h, r, w, r), x.reshape(c, r, r, h, w)
+    for i in range(r):
+        for j in range(r):
+            tiles[:, :, i, :, j] = groups[:, i, j]
+    return out
 
 
 def network_input(image: np.ndarray) -> np.ndarray:
