@@ -73,10 +73,10 @@ paper-model: setup
 # The shipped default single-shot model (fpp_nodes/fpp_nodes/data/models/composite.onnx + card): the
 # composite data set (scene families across the working volume, the composite single-shot frame; held-out
 # families in the test split only), the fringe-analysing network on 160-pixel crops (stopped on 40
-# validation scenes), 30 more epochs from its best at a quarter of the rate, export with its rules
-# chosen on 200 validation scenes, the per-family table (with FTP on the same composite images) and
-# the failure cases beside the paper's UNet. The shipped model is this recipe run end to end (about
-# 75 minutes on 2 cores).
+# validation scenes), 30 more epochs from its best at a quarter of the rate, 40 more at a restarted
+# rate, export with its rules chosen on 200 validation scenes, the per-family table (with FTP on the
+# same composite images) and the failure cases beside the paper's UNet. The shipped model is this recipe
+# (about 95 minutes on 2 cores with AVX-512; docs/single-shot.md).
 COMPOSITE_EPOCHS ?= 90
 .PHONY: composite-model
 composite-model: setup
@@ -85,8 +85,10 @@ composite-model: setup
 	  --batch-size 8 --patience 4 --epochs $(COMPOSITE_EPOCHS) --out runs/composite
 	$(PY) -m training.train --data data/fpp/composite --arch composite --width 16 --downsample 1 --crop 160 \
 	  --batch-size 8 --patience 4 --epochs 30 --lr 2.5e-4 --init runs/composite/best.pt --out runs/composite_finetune
+	$(PY) -m training.train --data data/fpp/composite --arch composite --width 16 --downsample 1 --crop 160 \
+	  --batch-size 8 --patience 4 --epochs 40 --lr 5e-4 --init runs/composite_finetune/best.pt --out runs/composite_restart
 	$(PY) -m training.dataset --out data/fpp --set composite --counts 360,200,120  # 160 more validation scenes for the rules
-	$(PY) -m training.export runs/composite_finetune/best.pt --out fpp_nodes/fpp_nodes/data/models/composite.onnx
+	$(PY) -m training.export runs/composite_restart/best.pt --out fpp_nodes/fpp_nodes/data/models/composite.onnx
 	$(PY) -m training.evaluate --data data/fpp/composite --families fpp_nodes/fpp_nodes/data/models/composite.onnx
 	$(PY) -m training.figures --failures --out docs/pictures fpp_nodes/fpp_nodes/data/models/composite.onnx \
 	  fpp_nodes/fpp_nodes/data/models/unet.onnx
