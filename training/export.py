@@ -5,7 +5,9 @@
 
 The ONNX model has one input, `image` (float32, N x 1 x H x W, the camera image / full scale, at 1/
 downsample of the camera's resolution, H and W multiples of 32) and one output, `depth_mm`
-(float32, N x 1 x H x W, millimetres along the optical axis); height and width are dynamic. The export
+(float32, N x 1 x H x W, millimetres along the optical axis); height and width are dynamic. A
+composite network's file ends before its last pixel shuffle (its card's output.pixel_shuffle), which
+DepthModel does in numpy: onnxruntime's DepthToSpace is slow on CPUs. The export
 is checked with onnx.checker, then run with onnxruntime at a size other than the training size and
 compared with torch (PARITY_TOLERANCE_MM). The card (<model>.yaml) records the rig, input
 normalisation, output units, training data and metrics, and the file's sha256.
