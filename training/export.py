@@ -190,7 +190,7 @@ def export(
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     example = torch.rand(1, 1, 480 // cfg.downsample // 32 * 32, 640 // cfg.downsample // 32 * 32)
-    shuffle = 2 if cfg.arch == "composite" else 1  # the composite's last pixel shuffle runs in DepthModel
+    shuffle = getattr(model, "PIXEL_SHUFFLE", 1)  # a composite network's last pixel shuffle runs in DepthModel
     warnings.filterwarnings("ignore", "You are using the legacy TorchScript-based ONNX export", DeprecationWarning)
     # dynamo=False: the TorchScript exporter gives plain dynamic height/width for this fully convolutional net
     torch.onnx.export(
@@ -241,7 +241,7 @@ def export(
             else {
                 "name": output,
                 "channels": "carrier numerator, denominator, then each code grating's (full-scale units), "
-                "each as 4 channels at half resolution to pixel-shuffle",
+                f"each as {shuffle * shuffle} channels at 1/{shuffle} of the resolution to pixel-shuffle",
                 "pixel_shuffle": shuffle,
             }
             if cfg.arch == "composite"

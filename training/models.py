@@ -212,13 +212,15 @@ class CompositeNet(nn.Module):
     gratings: its carrier and patterns.COMPOSITE_CODES; training/compare_codes.py tries others).
     """
 
+    PIXEL_SHUFFLE = 2  # the first layer's stride, undone at the end (export leaves it to DepthModel)
+
     def __init__(self, width: int = 16, gratings: int = 1 + len(COMPOSITE_CODES)):
         super().__init__()
-        p = width
-        layers = [nn.Conv2d(1, p, 6, stride=2, padding=2), nn.ReLU(inplace=True)]
+        p, r = width, self.PIXEL_SHUFFLE
+        layers = [nn.Conv2d(1, p, 6, stride=r, padding=2), nn.ReLU(inplace=True)]
         for dilation in (1, 2, 4, 2):
             layers += [nn.Conv2d(p, p, 3, padding=dilation, dilation=dilation), nn.ReLU(inplace=True)]
-        self.net = nn.Sequential(*layers, nn.Conv2d(p, 8 * gratings, 1))
+        self.net = nn.Sequential(*layers, nn.Conv2d(p, 2 * gratings * r * r, 1))
         self.context = nn.Sequential(
             nn.AvgPool2d(4),
             nn.Conv2d(p, p, 3, padding=1),
@@ -241,7 +243,7 @@ class CompositeNet(nn.Module):
         return self.net[2:](first + self.context(first))
 
     def forward(self, image):
-        return nn.functional.pixel_shuffle(self.half_resolution(image), 2)
+        return nn.functional.pixel_shuffle(self.half_resolution(image), self.PIXEL_SHUFFLE)
 
 
 ARCHITECTURES = ("fcn", "aen", "unet", "phase", "composite")
