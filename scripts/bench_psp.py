@@ -31,10 +31,10 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fpp_nodes"))
-from fpp_nodes.core.calibration import back_project  # noqa: E402
+from fpp_nodes.core.fused import sequence_phase, trusted_points  # noqa: E402
 from fpp_nodes.core.metrics import depth_errors  # noqa: E402
-from fpp_nodes.core.phase import phase_and_modulation, phase_noise, unwrap_temporal, wrapped_phase  # noqa: E402
-from fpp_nodes.core.reconstruct import PspReconstructor, multi_frequency_phase, trusted_depth, unsaturated  # noqa: E402
+from fpp_nodes.core.phase import pooled_phase_noise, residual_bases, step_weights  # noqa: E402
+from fpp_nodes.core.reconstruct import PspReconstructor  # noqa: E402
 from fpp_nodes.core.scenes import make_scene  # noqa: E402
 from fpp_nodes.core.simulation import Rig, render  # noqa: E402
 from fpp_nodes.core.workflow import fringe_depth_mm, simulated_calibration  # noqa: E402
@@ -56,36 +56,45 @@ def stage_table(psp: PspReconstructor, images: np.ndarray, repeat: int) -> None:
     """The multi-shot path's stages, each timed alone on the whole image in one thread."""
     patterns, limits = psp.calibration.patterns, psp.limits
     n = patterns.steps
-    frames = [images[i * n : (i + 1) * n] for i in range(len(patterns.frequencies))]
-    phase, valid, modulation, noise = multi_frequency_phase(images, patterns, limits)
-    wrapped = [wrapped_phase(f) for f in frames[:-1]] + [phase_and_modulation(frames[-1])[0]]
-    depth, _ = psp.depth(phase, noise)
+    frequencies = np.asarray(patterns.frequencies, np.float64)
+    kernel_args = (
+        images,
+        0,
+        images.shape[1],
+        *step_weights(n),
+        frequencies[1:] / frequencies[:-1],
+        *residual_bases(n),
+        np.float32(limits.max_order_residual / (2 * np.pi)),
+        np.float32(255),
+    )
+    phase, modulation, valid, power = sequence_phase(*kernel_args)
+    noise = pooled_phase_noise(power, modulation, n, True)
+    height, width = phase.shape
+    out = (np.empty_like(phase), np.empty_like(phase), np.empty_like(valid), np.empty((height, width, 3), np.float32))
+    limits_mm = np.array([limits.max_depth_noise_mm, limits.max_depth_step_mm])
     stages = [
-        (f"phase, {f} fringe{'s' * (f > 1)}", lambda fr=fr: wrapped_phase(fr))
-        for f, fr in zip(patterns.frequencies, frames[:-1])
-    ]
-    stages += [
-        (f"phase + modulation, {patterns.frequencies[-1]} fringes", lambda: phase_and_modulation(frames[-1])),
-        ("unwrapping (temporal)", lambda: unwrap_temporal(wrapped, patterns.frequencies, limits.max_order_residual)),
-        ("checks: saturation", lambda: unsaturated(frames[-1])),
-        ("checks: phase noise (N-step residual)", lambda: phase_noise(frames[-1], modulation)),
-        ("depth + depth noise (rational model)", lambda: psp.depth(phase, noise)),
         (
-            "trust: shadow edges, flying pixels",
-            lambda: trusted_depth(depth.copy(), valid.copy(), limits.max_depth_step_mm),
+            f"{len(frequencies)} phases, unwrapping, saturation, residual (compiled pass 1)",
+            lambda: sequence_phase(*kernel_args),
         ),
-        ("XYZ (back-projection)", lambda: back_project(depth, psp.calibration.camera)),
+        ("phase noise (5x5 pooled residual / B)", lambda: pooled_phase_noise(power, modulation, n, True)),
+        (
+            "depth, depth noise, trust rules, XYZ (compiled pass 2)",
+            lambda: trusted_points(
+                phase, noise, valid, 0, 0, height, psp._terms, psp._slope, *psp._rays, limits_mm, out
+            ),
+        ),
     ]
     one_thread = PspReconstructor(psp.calibration, limits, threads=1)
-    print(f"{'stage':40} {'ms median':>9}")
+    print(f"{'stage':66} {'ms median':>9}")
     total = 0.0
     for name, fn in stages:
         ms = float(np.median(timed(fn, repeat)[1]))
         total += ms
-        print(f"{name:40} {ms:9.2f}")
-    print(f"{'sum of the stages':40} {total:9.2f}")
-    print(f"{'whole path, 1 thread':40} {np.median(timed(lambda: one_thread(images), repeat)[1]):9.2f}")
-    print(f"{f'whole path, {len(psp._bands)} threads':40} {np.median(timed(lambda: psp(images), repeat)[1]):9.2f}\n")
+        print(f"{name:66} {ms:9.2f}")
+    print(f"{'sum of the stages':66} {total:9.2f}")
+    print(f"{'whole path, 1 thread':66} {np.median(timed(lambda: one_thread(images), repeat)[1]):9.2f}")
+    print(f"{f'whole path, {len(psp._bands)} threads':66} {np.median(timed(lambda: psp(images), repeat)[1]):9.2f}\n")
 
 
 def opencv_psp(rig: Rig, patterns_top: int):

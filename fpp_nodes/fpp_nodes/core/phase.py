@@ -61,9 +61,14 @@ def phase_sums(images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise PhaseError(f"images must be real numbers, got {images.dtype}")
     if images.dtype.kind == "f" and images.dtype != np.float64:
         images = images.astype(np.float32, copy=False)
-    delta = TWO_PI * np.arange(images.shape[0]) / images.shape[0]
     dtype = _work_dtype(images)
-    return _weighted_sum(images, -np.sin(delta), dtype), _weighted_sum(images, np.cos(delta), dtype)
+    return tuple(_weighted_sum(images, w, dtype) for w in step_weights(images.shape[0]))
+
+
+def step_weights(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The weights of -S and C over N steps: -sin(delta_j) and cos(delta_j), delta_j = 2 pi j / N."""
+    delta = TWO_PI * np.arange(n) / n
+    return tuple(np.where(np.abs(w) < 1e-12, 0.0, w) for w in (-np.sin(delta), np.cos(delta)))  # exact zeros
 
 
 def angle(y: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -116,22 +121,40 @@ def phase_noise(images: np.ndarray, modulation: np.ndarray, window: int = NOISE_
     integer images, at least the camera's rounding (1/12 count^2). Needs N >= 4: three steps fit
     exactly and leave no residual."""
     n = images.shape[0]
+    dtype = _work_dtype(images)
+    power = None
+    for basis, weight in zip(*residual_bases(n)):
+        part = _weighted_sum(images, basis, dtype)
+        part = cv2.multiply(part, part, scale=weight)
+        power = part if power is None else cv2.add(power, part)
+    return pooled_phase_noise(power, modulation, n, images.dtype.kind in "ui", window)
+
+
+def residual_bases(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The residual power of an N-step fit as sum_k weight_k (basis_k . I)^2, scaled so that it is
+    sigma_phi^2 B^2 per pixel: (bases (K, N), weights (K,)). The bases are the DFT bins 2 to N - 2
+    (bins k and N - k carry the same power, except k = N / 2)."""
     if n < 4:
         raise PhaseError(f"the phase noise needs N >= 4 phase-shift steps (3 fit exactly), got {n}")
-    dtype = _work_dtype(images)
     delta = TWO_PI * np.arange(n) / n
-    scale = 2.0 / (n * (n - 3))  # sigma_phi^2 B^2 per unit of residual power: 2/N for the phase, N - 3 dof
-    power = None
-    for k in range(2, n // 2 + 1):  # bins k and n - k carry the same power, except k = n / 2
-        weight = (1.0 if 2 * k == n else 2.0) / n * scale
+    scale = 2.0 / (n * (n - 3))  # 2/N for the phase, over N - 3 degrees of freedom
+    bases, weights = [], []
+    for k in range(2, n // 2 + 1):
         for basis in (np.cos(k * delta), np.sin(k * delta)):
             if np.abs(basis).max() > 1e-9:
-                part = _weighted_sum(images, basis, dtype)
-                part = cv2.multiply(part, part, scale=weight)
-                power = part if power is None else cv2.add(power, part)
+                bases.append(basis)
+                weights.append((1.0 if 2 * k == n else 2.0) / n * scale)
+    return np.array(bases), np.array(weights)
+
+
+def pooled_phase_noise(
+    power: np.ndarray, modulation: np.ndarray, n: int, integer: bool, window: int = NOISE_WINDOW
+) -> np.ndarray:
+    """phase_noise from each pixel's residual power (residual_bases): pooled over window x window
+    pixels, at least the rounding of integer images, over B."""
     power = cv2.boxFilter(power, -1, (window, window), borderType=cv2.BORDER_REPLICATE)
-    if images.dtype.kind in "ui":
-        np.maximum(power, scale * (n - 3) / 12.0, out=power)
+    if integer:
+        np.maximum(power, 2.0 / n / 12.0, out=power)  # 2/N sigma^2, sigma^2 the rounding's 1/12 count^2
     with np.errstate(divide="ignore"):
         return cv2.sqrt(power) / modulation
 

@@ -10,18 +10,18 @@ import cv2
 import numpy as np
 
 from .calibration import Calibration, back_project
+from .fused import sequence_phase, trusted_points
 from .patterns import COMPOSITE_CODES, PatternSet
 from .phase import (
     TWO_PI,
     PhaseError,
     ftp_code_phases,
     ftp_wrapped_phase,
-    phase_and_modulation,
-    phase_noise,
+    pooled_phase_noise,
+    residual_bases,
+    step_weights,
     unwrap_spatial,
-    unwrap_temporal,
     wrap_phase,
-    wrapped_phase,
 )
 
 
@@ -60,11 +60,6 @@ class QualityLimits:
             raise ValueError(f"max_depth_step_mm must be > 0, got {self.max_depth_step_mm}")
 
 
-def full_scale(dtype) -> float:
-    """The brightest value a camera image of this dtype holds (1.0 for float images)."""
-    return float(np.iinfo(dtype).max) if np.issubdtype(dtype, np.integer) else 1.0
-
-
 def drop_flying_pixels(depth: np.ndarray, max_step: float) -> np.ndarray:
     """Mask of pixels whose depth is within max_step of all finite 4-neighbours."""
     depth = np.asarray(depth, np.float32)
@@ -79,39 +74,39 @@ def drop_flying_pixels(depth: np.ndarray, max_step: float) -> np.ndarray:
     return steady
 
 
-def multi_frequency_phase(images: np.ndarray, patterns: PatternSet, limits: QualityLimits = QualityLimits()):
+def multi_frequency_phase(
+    images: np.ndarray, patterns: PatternSet, limits: QualityLimits = QualityLimits(), rows: slice = slice(None)
+):
     """From a sequence (F*N phase-shift images in projection order, then the single-shot composite when
-    the set has one): the unwrapped phase of the highest frequency, the mask of pixels whose fringe
-    order is consistent and whose top-frequency images are unsaturated, that frequency's modulation B
-    and its phase noise (rad, phase.phase_noise)."""
+    the set has one): the unwrapped phase of the highest frequency (phase.unwrap_temporal of each
+    frequency's phase.wrapped_phase), the mask of pixels whose fringe order is consistent and whose
+    top-frequency images are below full scale (a clipped sinusoid moves the phase), that frequency's
+    modulation B and its phase noise (rad, phase.phase_noise): in one compiled pass, fused.sequence_phase.
+    Of these rows only, where rows is given (phase noise pools neighbours: it is exact a few rows in)."""
     n = patterns.steps
     if images.ndim != 3 or images.shape[0] != patterns.count:
         raise PhaseError(
             f"expected {patterns.count} images ({_described(patterns)}), got an array shaped {images.shape}"
         )
-    wrapped = [wrapped_phase(images[i * n : (i + 1) * n]) for i in range(len(patterns.frequencies) - 1)]
-    top = images[patterns.top_frequency_frames]
-    top_phase, modulation = phase_and_modulation(top)
-    wrapped.append(top_phase)
-    phase, valid = unwrap_temporal(wrapped, patterns.frequencies, limits.max_order_residual)
-    valid &= unsaturated(top)
-    noise = phase_noise(top, modulation)
-    return (
-        phase.astype(np.float32, copy=False),
-        valid,
-        modulation.astype(np.float32, copy=False),
-        noise.astype(np.float32, copy=False),
-    )  # float64 images: the sensor's outputs are float32 all the same
+    if not np.issubdtype(images.dtype, np.integer) and not np.issubdtype(images.dtype, np.floating):
+        raise PhaseError(f"images must be real numbers, got {images.dtype}")
+    integer = np.issubdtype(images.dtype, np.integer)
+    frequencies = np.asarray(patterns.frequencies, np.float64)
+    phase, modulation, valid, power = sequence_phase(
+        np.ascontiguousarray(images),
+        *rows.indices(images.shape[1])[:2],
+        *step_weights(n),
+        frequencies[1:] / frequencies[:-1],
+        *residual_bases(n),
+        np.float32(limits.max_order_residual / TWO_PI),
+        np.float32(full_scale(images.dtype) if integer else np.inf),  # float images: no saturation known
+    )
+    return phase, valid, modulation, pooled_phase_noise(power, modulation, n, integer)
 
 
-def unsaturated(images: np.ndarray) -> np.ndarray:
-    """Pixels below full scale in every image (a clipped sinusoid moves the phase); all of a float stack."""
-    if not np.issubdtype(images.dtype, np.integer):
-        return np.ones(images.shape[1:], bool)
-    brightest = images[0]
-    for img in images[1:]:
-        brightest = cv2.max(brightest, img)
-    return brightest < full_scale(images.dtype)
+def full_scale(dtype) -> float:
+    """The brightest value a camera image of this dtype holds (1.0 for float images)."""
+    return float(np.iinfo(dtype).max) if np.issubdtype(dtype, np.integer) else 1.0
 
 
 def _described(patterns: PatternSet) -> str:
@@ -148,6 +143,7 @@ class PspReconstructor:
     Call with the (F*N, H, W) stack in projection order (all steps of frequency 1, then the next).
     The work is per pixel but for small neighbourhoods, so `threads` bands of rows run at once, each
     with BAND_HALO rows of its neighbours: the result is the one-piece result to float32 rounding.
+    The per-pixel work is two compiled passes (fused.py) that release the interpreter lock.
     """
 
     def __init__(self, calibration: Calibration, limits: QualityLimits = QualityLimits(), threads: int = 2):
@@ -158,8 +154,10 @@ class PspReconstructor:
             )
         self.calibration = calibration
         self.limits = limits
-        self._ca, self._cb, self._da, self._db = depth_terms(calibration)
-        self._slope = np.abs(self._cb * self._da - self._ca * self._db)  # |dz/dphi| (da + db phi)^2
+        self._terms = np.stack(depth_terms(calibration))
+        ca, cb, da, db = self._terms
+        self._slope = np.abs(cb * da - ca * db)  # |dz/dphi| (da + db phi)^2
+        self._rays = [np.ascontiguousarray(r, np.float32) for r in calibration.camera.rays()]
         height = calibration.camera.height
         edges = np.linspace(0, height, max(1, min(threads, height // (4 * BAND_HALO))) + 1).astype(int)
         self._bands = list(zip(edges[:-1], edges[1:]))
@@ -175,49 +173,31 @@ class PspReconstructor:
             )
 
     def __call__(self, images: np.ndarray) -> Reconstruction:
-        images = np.asarray(images)
+        images = np.ascontiguousarray(images)
         self.check(images)
-        if self._pool is None:
-            depth, valid, noise, phase, modulation = self._band(images, 0, images.shape[1])
-        else:  # each band writes its rows of the outputs
-            shape = images.shape[1:]
-            depth, valid, noise, phase, modulation = outputs = [
-                np.empty(shape, t) for t in (np.float32, bool, *[np.float32] * 3)
-            ]
-            for band in [self._pool.submit(self._band, images, *rows, outputs) for rows in self._bands]:
-                band.result()
-        return Reconstruction(depth, back_project(depth, self.calibration.camera), valid, noise, phase, modulation)
-
-    def _band(self, images: np.ndarray, first: int, last: int, outputs: list | None = None) -> tuple[np.ndarray, ...]:
-        """(depth, valid, depth noise, phase, modulation) of rows first to last, from those rows and
-        BAND_HALO more on each side; written into those rows of outputs where given."""
-        lo, hi = max(0, first - BAND_HALO), min(images.shape[1], last + BAND_HALO)
-        rows = slice(lo, hi)
-        phase, valid, modulation, noise_rad = multi_frequency_phase(
-            images[:, rows], self.calibration.patterns, self.limits
+        shape = images.shape[1:]
+        out = Reconstruction(
+            *(np.empty(shape, np.float32), np.empty((*shape, 3), np.float32), np.empty(shape, bool)),
+            *(np.empty(shape, np.float32) for _ in range(3)),
         )
-        depth, noise_mm = self.depth(phase, noise_rad, rows)
-        valid &= noise_mm <= self.limits.max_depth_noise_mm
-        depth, valid = trusted_depth(depth, valid, self.limits.max_depth_step_mm)
-        np.copyto(noise_mm, np.nan, where=~valid)
-        keep = slice(first - lo, last - lo)
-        results = tuple(a[keep] for a in (depth, valid, noise_mm, phase, modulation))
-        for target, result in zip(outputs or (), results):
-            target[first:last] = result
-        return results
+        if self._pool is None:
+            self._band(images, 0, shape[0], out)
+        else:  # each band writes its rows of the outputs
+            for band in [self._pool.submit(self._band, images, *rows, out) for rows in self._bands]:
+                band.result()
+        return out
 
-    def depth(
-        self, phase: np.ndarray, noise_rad: np.ndarray, rows: slice = slice(None)
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The rational model at these rows: depth = (ca + cb phi) / (da + db phi), and the depth noise
-        (mm) a phase noise causes, |dz/dphi| noise_rad, dz/dphi = (cb da - ca db) / (da + db phi)^2."""
-        num = cv2.multiply(self._cb[rows], phase)
-        num += self._ca[rows]
-        den = cv2.multiply(self._db[rows], phase)
-        den += self._da[rows]
-        depth = cv2.divide(num, den)
-        noise = cv2.divide(cv2.multiply(noise_rad, self._slope[rows]), cv2.multiply(den, den))
-        return depth, noise
+    def _band(self, images: np.ndarray, first: int, last: int, out: Reconstruction) -> None:
+        """Rows first to last of out, from those rows and BAND_HALO more on each side."""
+        lo, hi = max(0, first - BAND_HALO), min(images.shape[1], last + BAND_HALO)
+        phase, valid, modulation, noise_rad = multi_frequency_phase(
+            images, self.calibration.patterns, self.limits, slice(lo, hi)
+        )
+        limits = np.array([self.limits.max_depth_noise_mm, self.limits.max_depth_step_mm])
+        outputs = (out.depth_mm, out.quality, out.valid, out.xyz_mm)
+        trusted_points(phase, noise_rad, valid, lo, first, last, self._terms, self._slope, *self._rays, limits, outputs)
+        out.phase[first:last] = phase[first - lo : last - lo]
+        out.modulation[first:last] = modulation[first - lo : last - lo]
 
 
 # Rows each band of PspReconstructor reads beyond its own: the phase noise pools 5 x 5 pixels (2 rows),

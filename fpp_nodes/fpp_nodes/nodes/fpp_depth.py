@@ -57,6 +57,8 @@ class FppDepth(Node):
         self.health.facts["calibration"] = describe(calibration, source)
         self.reconstruct = PspReconstructor(calibration, self.limits)
         cam = calibration.camera
+        # compiles the path's kernels (or loads them from numba's cache) now, not on the first sequence
+        self.reconstruct(np.zeros((calibration.patterns.count, cam.height, cam.width), np.uint8))
         self.info = camera_info(**cam.to_dict())
 
     def _wanted(self):

@@ -6,8 +6,16 @@ import cv2
 import numpy as np
 import pytest
 
+from fpp_nodes.core.calibration import back_project
 from fpp_nodes.core.metrics import depth_errors
-from fpp_nodes.core.reconstruct import PspReconstructor, QualityLimits, drop_flying_pixels, reconstruct_ftp
+from fpp_nodes.core.phase import phase_and_modulation, phase_noise, unwrap_temporal, wrapped_phase
+from fpp_nodes.core.reconstruct import (
+    PspReconstructor,
+    QualityLimits,
+    drop_flying_pixels,
+    reconstruct_ftp,
+    trusted_depth,
+)
 from fpp_nodes.core.scenes import make_scene, plane_scene
 from fpp_nodes.core.simulation import render
 from fpp_nodes.core.workflow import fringe_depth_mm, held_out_scenes, score
@@ -85,16 +93,39 @@ def test_dark_scenes_are_measured_to_their_noise(rig, patterns, calibration):
     assert np.nanmax(np.abs(rec.depth_mm - capture.depth_mm)[~edges]) < 1.0
 
 
-def test_the_fast_phase_costs_no_accuracy(rig, patterns, calibration):
-    """8-bit images go through cv2.phase (float32, within 2e-4 rad of atan2); the same images as float64
-    through numpy's exact atan2: the depth agrees to float32's rounding at 1.2 m (1.2e-4 mm)."""
+def test_the_compiled_passes_are_the_plain_functions(rig, patterns, calibration):
+    """PspReconstructor's two compiled passes (float32, a polynomial atan2) against phase.py's functions
+    composed in float64 with numpy's exact atan2, then trusted_depth and back_project: the same pixels
+    kept but for a few whose noise sits at the limit, depth to float32's rounding at 1.2 m (1.2e-4 mm),
+    the expected noise to 1e-4 of itself. The scene has saturated pixels (the top frequency clipped)."""
     capture = render(rig, make_scene(rig, "sculpture", 5), patterns, np.random.default_rng(5))
-    psp = PspReconstructor(calibration)
-    fast, exact = psp(capture.images).depth_mm, psp(capture.images.astype(np.float64)).depth_mm
-    both = np.isfinite(fast) & np.isfinite(exact)
-    assert both.sum() > 0.95 * np.isfinite(exact).sum()
-    difference = (fast - exact)[both]
+    images = capture.images.copy()
+    images[patterns.top_frequency_frames, 200:210, 300:310] = 255
+    rec = PspReconstructor(calibration)(images)
+
+    exact = images.astype(np.float64)
+    n, levels = patterns.steps, len(patterns.frequencies)
+    wrapped = [wrapped_phase(exact[i * n : (i + 1) * n]) for i in range(levels)]
+    phase, valid = unwrap_temporal(wrapped, patterns.frequencies)
+    top = images[patterns.top_frequency_frames]
+    valid &= top.max(axis=0) < 255
+    _, modulation = phase_and_modulation(exact[patterns.top_frequency_frames])
+    u, v = calibration.camera.ideal_pixels()
+    depth = calibration.model.depth(phase, u, v)
+    dz_dphi = (calibration.model.depth(phase + 1e-4, u, v) - calibration.model.depth(phase - 1e-4, u, v)) / 2e-4
+    noise = np.abs(dz_dphi) * phase_noise(top, modulation.astype(np.float32))
+    valid &= noise <= QualityLimits().max_depth_noise_mm
+    depth, valid = trusted_depth(depth.astype(np.float32), valid, QualityLimits().max_depth_step_mm)
+
+    assert not rec.valid[200:210, 300:310].any()
+    assert (rec.valid != valid).sum() <= 20, (rec.valid != valid).sum()
+    both = rec.valid & valid
+    assert both.sum() > 0.9 * both.size
+    difference = (rec.depth_mm - depth)[both]
     assert np.abs(difference).max() < 1e-3 and np.sqrt(np.mean(difference**2)) < 3e-4
+    np.testing.assert_allclose(rec.quality[both], noise[both], rtol=1e-3)
+    np.testing.assert_allclose(rec.xyz_mm[both], back_project(depth, calibration.camera)[both], atol=1e-3)
+    assert np.array_equal(np.isnan(rec.xyz_mm[..., 2]), ~rec.valid)
 
 
 def test_row_bands_give_the_result_in_one_piece(rig, patterns, calibration):

@@ -1,0 +1,178 @@
+"""The multi-shot path's per-pixel work in one compiled pass over the sequence (numba): each image is
+read once, and every intermediate lives in a row buffer that stays in the CPU's first-level cache.
+Separate numpy or OpenCV calls each pass over the whole 640x480 frame, about a hundred passes for a
+16-image sequence. The science is phase.py's, which tests compare this kernel against.
+
+The kernel holds no Python objects and releases the interpreter lock (nogil), so row bands run on
+threads of their own (reconstruct.PspReconstructor): no threading layer of numba's, nothing that a
+fork (training.dataset's workers) or a second calling thread could upset. Compiled once per image
+dtype and cached next to this file (or in ~/.cache/numba where that is read-only).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_HALF_PI, _PI, _TWO_PI = np.float32(math.pi / 2), np.float32(math.pi), np.float32(2 * math.pi)
+_INV_TWO_PI = np.float32(1 / (2 * math.pi))
+# atan(t) ~ t P(t^2) on [0, 1], within 2.5e-7 rad: a weighted least-squares fit toward the minimax
+# polynomial (cv2.phase is within 2e-4 rad). Written out so that the compiler vectorizes it; libm's
+# atan2 is one pixel at a time.
+_A0, _A1, _A2, _A3 = (np.float32(a) for a in (0.99999611, -0.33317368, 0.19807816, -0.13233342))
+_A4, _A5, _A6 = (np.float32(a) for a in (0.07962367, -0.03360422, 0.00681179))
+_FAST = {"contract", "arcp", "nsz"}  # fused multiply-adds; not "nnan": a NaN image stays NaN
+
+
+@numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
+def _angle(y, x):
+    """atan2(y, x) in [0, 2 pi]."""
+    ax, ay = abs(x), abs(y)
+    hi, lo = max(ax, ay), min(ax, ay)
+    t = lo / (hi + np.float32(1e-30))  # 0 at the origin, as atan2
+    s = t * t
+    a = t * (_A0 + s * (_A1 + s * (_A2 + s * (_A3 + s * (_A4 + s * (_A5 + s * _A6))))))
+    a = _HALF_PI - a if ay > ax else a
+    a = _PI - a if x < 0 else a
+    return _TWO_PI - a if y < 0 else a
+
+
+# Per-pixel updates are written as sums and unconditional stores: a conditional store (a running
+# maximum) kept the compiler from vectorizing the loop, 3x slower.
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+def sequence_phase(
+    images, first, last, sin_weights, cos_weights, ratios, residual_bases, residual_weights, max_cycles, full_scale
+):
+    """From (F*N [+ more], H, W) phase-shift images in projection order, F frequencies of N steps, at
+    rows first to last: the top frequency's unwrapped phase, its modulation B, the pixels whose fringe
+    order agrees at every level (|cycles - order| <= max_cycles) and whose top-frequency images stay
+    below full_scale, and the top frequency's residual power (sum over residual_bases of weight x
+    (basis . I)^2). ratios are f_i / f_(i-1). float32 throughout."""
+    n, levels, width = sin_weights.shape[0], ratios.shape[0] + 1, images.shape[2]
+    phase = np.empty((last - first, width), np.float32)
+    modulation = np.empty((last - first, width), np.float32)
+    trusted = np.empty((last - first, width), np.bool_)
+    power = np.empty((last - first, width), np.float32)
+    y, x = np.empty(width, np.float32), np.empty(width, np.float32)
+    fails = np.empty(width, np.float32)
+    top = (levels - 1) * n
+    for i in range(last - first):
+        r = first + i
+        fails[:] = 0
+        unwrapped = phase[i]
+        for level in range(levels):
+            y[:] = 0
+            x[:] = 0
+            for j in range(n):
+                image, ws, wc = images[level * n + j, r], np.float32(sin_weights[j]), np.float32(cos_weights[j])
+                for c in range(width):
+                    value = np.float32(image[c])
+                    y[c] += ws * value
+                    x[c] += wc * value
+            if level == 0:
+                for c in range(width):
+                    unwrapped[c] = _angle(y[c], x[c])
+            else:  # equation (2): the order from the level below, scaled to this frequency
+                scale = np.float32(ratios[level - 1]) * _INV_TWO_PI
+                for c in range(width):
+                    wrapped = _angle(y[c], x[c])
+                    cycles = unwrapped[c] * scale - wrapped * _INV_TWO_PI
+                    order = np.float32(np.rint(cycles))
+                    fails[c] += np.float32(abs(cycles - order) > max_cycles)
+                    unwrapped[c] = wrapped + _TWO_PI * order
+        b = modulation[i]
+        for c in range(width):
+            b[c] = np.float32(2.0 / n) * math.sqrt(x[c] * x[c] + y[c] * y[c])
+        for j in range(n):
+            image = images[top + j, r]
+            for c in range(width):
+                fails[c] += np.float32(np.float32(image[c]) >= full_scale)
+        keep = trusted[i]
+        for c in range(width):
+            keep[c] = fails[c] == 0
+        p = power[i]
+        p[:] = 0
+        for k in range(residual_bases.shape[0]):
+            x[:] = 0
+            for j in range(n):
+                image, w = images[top + j, r], np.float32(residual_bases[k, j])
+                for c in range(width):
+                    x[c] += w * np.float32(image[c])
+            w = np.float32(residual_weights[k])
+            for c in range(width):
+                p[c] += w * x[c] * x[c]
+    return phase, modulation, trusted, power
+
+
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+def trusted_points(phase, phase_noise, trusted, lo, first, last, terms, slope, rays_x, rays_y, limits, out):
+    """A band of rows, from image row lo on: its unwrapped phase, phase noise (rad) and trusted pixels
+    -> the rational model's depth (ca + cb phi) / (da + db phi) and depth noise |dz/dphi| phase_noise,
+    dz/dphi = (cb da - ca db) / (da + db phi)^2, under reconstruct.trusted_depth's rules: a pixel is
+    kept where it is trusted, its depth noise is at most limits[0] mm, so are its 4-neighbours'
+    (defocus carries fringes across a shadow edge), and no kept 4-neighbour's depth is more than
+    limits[1] mm away (a flying pixel). Writes image rows first to last of out = (depth, depth
+    noise, kept, XYZ along the rays), NaN where not kept. terms (4, H, W), slope |cb da - ca db|
+    and the rays are the whole image's."""
+    height, width = phase.shape
+    max_noise, max_step = np.float32(limits[0]), np.float32(limits[1])
+    depth, noise = np.empty((height, width), np.float32), np.empty((height, width), np.float32)
+    for r in range(height):
+        ca, cb, da, db, s = terms[0, lo + r], terms[1, lo + r], terms[2, lo + r], terms[3, lo + r], slope[lo + r]
+        phi_row, sigma_row, trusted_row = phase[r], phase_noise[r], trusted[r]
+        for c in range(width):
+            phi = phi_row[c]
+            den = db[c] * phi + da[c]
+            z = (cb[c] * phi + ca[c]) / den
+            sigma = sigma_row[c] * s[c] / (den * den)
+            keep = trusted_row[c] & (sigma <= max_noise)
+            noise[r, c] = sigma
+            depth[r, c] = z if keep else np.nan
+    eroded = np.empty((height, width), np.float32)
+    for r in range(height):  # beyond the band and the image counts as kept, as cv2.erode's border
+        _neighbour_rule(depth[max(r - 1, 0)], depth[r], depth[min(r + 1, height - 1)], np.inf, eroded[r])
+    depth_out, noise_out, kept_out, xyz_out = out
+    for r in range(first - lo, last - lo):
+        z_row = depth_out[lo + r]
+        _neighbour_rule(eroded[max(r - 1, 0)], eroded[r], eroded[min(r + 1, height - 1)], max_step, z_row)
+        kept, noise_row, x, y, xyz = (
+            kept_out[lo + r],
+            noise_out[lo + r],
+            rays_x[lo + r],
+            rays_y[lo + r],
+            xyz_out[lo + r],
+        )
+        for c in range(width):
+            z, sigma = z_row[c], noise[r, c]
+            finite = np.isfinite(z)
+            kept[c] = finite
+            noise_row[c] = sigma if finite else np.nan
+            xyz[c, 0] = x[c] * z
+            xyz[c, 1] = y[c] * z
+            xyz[c, 2] = z
+
+
+@numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
+def _kept(z, a, b, c, d, max_step):
+    """z where its 4 neighbours a to d are all finite (max_step inf: the erosion) or none that is
+    finite is more than max_step away (the flying pixels); NaN otherwise. Comparisons with NaN are
+    false, so a NaN neighbour is no step."""
+    if max_step == np.inf:
+        return z if np.isfinite(a + b + c + d) else np.nan
+    step = (abs(z - a) > max_step) | (abs(z - b) > max_step) | (abs(z - c) > max_step) | (abs(z - d) > max_step)
+    return np.nan if step else z
+
+
+@numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
+def _neighbour_rule(up, row, down, max_step, out):
+    """_kept along a row (operands loaded before the choice, so that the loop vectorizes); a missing
+    neighbour at the sides is the pixel itself."""
+    width = row.shape[0]
+    out[0] = _kept(row[0], up[0], down[0], row[0], row[min(1, width - 1)], max_step)
+    for c in range(1, width - 1):
+        out[c] = _kept(row[c], up[c], down[c], row[c - 1], row[c + 1], max_step)
+    out[width - 1] = _kept(
+        row[width - 1], up[width - 1], down[width - 1], row[max(width - 2, 0)], row[width - 1], max_step
+    )
