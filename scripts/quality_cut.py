@@ -46,9 +46,12 @@ def variants(scene):
 
 def kept_depth(psp: PspReconstructor, images, max_noise_mm: float | None):
     """Depth by the multi-shot path with the noise cut (mm), or with the old modulation cut (None)."""
-    phase, valid, modulation, noise_rad = multi_frequency_phase(images, psp.calibration.patterns)
-    depth, noise_mm = psp.depth(phase, noise_rad)
-    valid &= noise_mm <= max_noise_mm if max_noise_mm is not None else modulation >= OLD_MIN_MODULATION * 255
+    calibration = psp.calibration
+    if max_noise_mm is not None:
+        return PspReconstructor(calibration, QualityLimits(max_depth_noise_mm=max_noise_mm))(images).depth_mm
+    phase, valid, modulation, _ = multi_frequency_phase(images, calibration.patterns)
+    depth = calibration.model.depth(phase, *calibration.camera.ideal_pixels()).astype(np.float32)
+    valid &= modulation >= OLD_MIN_MODULATION * 255
     return trusted_depth(depth, valid, QualityLimits.max_depth_step_mm)[0]
 
 

@@ -1,9 +1,10 @@
-"""The multi-shot path's per-pixel work in one compiled pass over the sequence (numba): each image is
-read once, and every intermediate lives in a row buffer that stays in the CPU's first-level cache.
-Separate numpy or OpenCV calls each pass over the whole 640x480 frame, about a hundred passes for a
-16-image sequence. The science is phase.py's, which tests compare this kernel against.
+"""The multi-shot path's per-pixel work in two compiled passes (numba): sequence_phase reads each image
+once, row by row, keeping every intermediate in row buffers that stay in the CPU's first-level cache;
+trusted_points turns the phase into depth, noise, the trusted pixels and XYZ. Separate numpy or OpenCV
+calls each pass over the whole 640x480 frame, about a hundred passes for a 16-image sequence. The
+science is phase.py's and reconstruct.py's, which tests compare these passes against.
 
-The kernel holds no Python objects and releases the interpreter lock (nogil), so row bands run on
+The passes hold no Python objects and release the interpreter lock (nogil), so row bands run on
 threads of their own (reconstruct.PspReconstructor): no threading layer of numba's, nothing that a
 fork (training.dataset's workers) or a second calling thread could upset. Compiled once per image
 dtype and cached next to this file (or in ~/.cache/numba where that is read-only).
