@@ -177,3 +177,69 @@ def _neighbour_rule(up, row, down, max_step, out):
     out[width - 1] = _kept(
         row[width - 1], up[width - 1], down[width - 1], row[max(width - 2, 0)], row[width - 1], max_step
     )
+
+
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+def code_phase(carrier, codes, intercepts, rates, spacings, lowest, low, high):
+    """reconstruct.CompositeDecoder.code_phase, row by row: codes, intercepts, rates and spacings are
+    (K, H, W), coarse code first; lowest, low and high the decoder's maps. Both candidates are refined
+    for every pixel and the choice is a select, so that each loop vectorizes (a candidate the finer
+    codes cannot bring into the working range misses by inf). float32 throughout."""
+    height, width = carrier.shape
+    count = codes.shape[0]
+    own = np.empty((height, width), np.float32)
+    left = np.empty((count, width), np.float32)
+    base, first, last = np.empty(width, np.float32), np.empty(width, np.float32), np.empty(width, np.float32)
+    here, there = np.empty(width, np.float32), np.empty(width, np.float32)
+    miss_here, miss_there = np.empty(width, np.float32), np.empty(width, np.float32)
+    for r in range(height):
+        for c in range(width):
+            phase = carrier[r, c]
+            b = phase + _TWO_PI * np.float32(np.ceil((lowest[r, c] - phase) * _INV_TWO_PI))  # lowest candidate
+            base[c] = b
+            first[c] = np.ceil((low[r, c] - b) * _INV_TWO_PI)
+            last[c] = np.floor((high[r, c] - b) * _INV_TWO_PI)
+        for k in range(count):  # what j s_k must match
+            for c in range(width):
+                left[k, c] = codes[k, r, c] - intercepts[k, r, c] - rates[k, r, c] * base[c]
+        coarse, spacing = left[0], spacings[0, r]
+        for c in range(width):
+            fits = (coarse[c] - _TWO_PI * np.floor(coarse[c] * _INV_TWO_PI)) / spacing[c]  # its first turn
+            here[c] = fits
+            # a turn of the coarse code nearer the middle may be inside the range too (a few % of pixels)
+            there[c] = fits - np.copysign(_TWO_PI / spacing[c], fits - np.float32(0.5) * (first[c] + last[c]))
+        _refine(here, left, spacings, r)
+        _refine(there, left, spacings, r)
+        miss_here[:] = 0
+        miss_there[:] = 0
+        for k in range(count):
+            code, spacing = left[k], spacings[k, r]
+            for c in range(width):
+                miss_here[c] += _wrapped_square(code[c] - here[c] * spacing[c])
+                miss_there[c] += _wrapped_square(code[c] - there[c] * spacing[c])
+        out = own[r]
+        for c in range(width):
+            j, t, lo, hi, m_here, m_there = here[c], there[c], first[c], last[c], miss_here[c], miss_there[c]
+            m_here = m_here if (j >= lo) & (j <= hi) else np.inf  # outside the working range: no candidate
+            m_there = m_there if (t >= lo) & (t <= hi) else np.inf
+            j = t if m_there < m_here else j
+            out[c] = base[c] + _TWO_PI * min(max(j, lo), hi)
+    return own
+
+
+@numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
+def _refine(j, left, spacings, r):
+    """j (a row) moved by each finer code to the nearest value it fits exactly, then rounded."""
+    for k in range(1, left.shape[0]):
+        for c in range(j.shape[0]):
+            miss = left[k, c] - j[c] * spacings[k, r, c]
+            j[c] += (miss - _TWO_PI * np.float32(np.rint(miss * _INV_TWO_PI))) / spacings[k, r, c]
+    for c in range(j.shape[0]):
+        j[c] = np.rint(j[c])
+
+
+@numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
+def _wrapped_square(miss):
+    """The square of a phase difference brought into [-pi, pi)."""
+    miss -= _TWO_PI * np.float32(np.floor((miss + _PI) * _INV_TWO_PI))
+    return miss * miss

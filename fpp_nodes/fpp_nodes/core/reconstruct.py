@@ -9,8 +9,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from . import fused
 from .calibration import Calibration, back_project
-from .fused import sequence_phase, trusted_points
 from .patterns import COMPOSITE_CODES, PatternSet
 from .phase import (
     TWO_PI,
@@ -92,7 +92,7 @@ def multi_frequency_phase(
         raise PhaseError(f"images must be real numbers, got {images.dtype}")
     integer = np.issubdtype(images.dtype, np.integer)
     frequencies = np.asarray(patterns.frequencies, np.float64)
-    phase, modulation, valid, power = sequence_phase(
+    phase, modulation, valid, power = fused.sequence_phase(
         np.ascontiguousarray(images),
         *rows.indices(images.shape[1])[:2],
         *step_weights(n),
@@ -195,7 +195,9 @@ class PspReconstructor:
         )
         limits = np.array([self.limits.max_depth_noise_mm, self.limits.max_depth_step_mm])
         outputs = (out.depth_mm, out.quality, out.valid, out.xyz_mm)
-        trusted_points(phase, noise_rad, valid, lo, first, last, self._terms, self._slope, *self._rays, limits, outputs)
+        fused.trusted_points(
+            phase, noise_rad, valid, lo, first, last, self._terms, self._slope, *self._rays, limits, outputs
+        )
         out.phase[first:last] = phase[first - lo : last - lo]
         out.modulation[first:last] = modulation[first - lo : last - lo]
 
@@ -266,9 +268,8 @@ class CompositeDecoder:
             )
             rate = slope + 1 / COMPOSITE_CODES[i][0]  # d(predicted code) / d(carrier phase)
             self.codes.append((i, *(a.astype(np.float32) for a in (intercept, rate, TWO_PI * rate))))
+        self._code_terms = [np.stack([code[k] for code in self.codes]) for k in (1, 2, 3)]  # (K, H, W) each
         self.lowest = lowest.astype(np.float32)
-        # how far the finer codes can move j (half a turn each) and the rounding: code_phase's reach
-        self.reach = np.float32(0.5 + sum(np.pi / float(spacing.min()) for *_, spacing in self.codes[1:]))
         # the candidates' phases: inside the working range, with half an order to spare at each end
         self.low = (np.minimum(ends[0], ends[1]) - np.pi).astype(np.float32)
         self.high = (np.maximum(ends[0], ends[1]) + np.pi).astype(np.float32)
@@ -322,38 +323,10 @@ class CompositeDecoder:
         middle of the range. From each, every finer code moves j to the nearest value it fits exactly
         (at most half a turn of that code away), and j rounded is a candidate. Of the candidates whose
         phase lies in the working range (half an order to spare at each end), the one all codes fit
-        best (least sum of squared misses); where neither does, the nearest order inside."""
-        two_pi = np.float32(TWO_PI)
-        lowest = carrier + two_pi * np.ceil((self.lowest - carrier) / two_pi)  # the lowest candidate's phase
-        first, last = np.ceil((self.low - lowest) / two_pi), np.floor((self.high - lowest) / two_pi)
-        left = [(codes[i] - a - rate * lowest, s) for i, a, rate, s in self.codes]  # what j s_i must match
-        coarse, spacing = left[0]
-        fits = (coarse - two_pi * np.floor(coarse / two_pi)) / spacing  # in the coarse code's first turn
-        j = self._refined(fits, left)
-        # a turn of the coarse code nearer the middle, j may be inside the range too (a few % of the pixels)
-        turned = fits - np.copysign(two_pi / spacing, fits - np.float32(0.5) * (first + last))
-        near = np.flatnonzero((turned > first - self.reach) & (turned < last + self.reach))
-        if near.size:
-            sub, lo, hi = [(c.flat[near], s.flat[near]) for c, s in left], first.flat[near], last.flat[near]
-            here, there = j.flat[near], self._refined(turned.flat[near], sub)
-            better = self._misses(there, sub, lo, hi) < self._misses(here, sub, lo, hi)
-            j.flat[near[better]] = there[better]
-        return lowest + two_pi * np.clip(j, first, last)
-
-    @staticmethod
-    def _refined(j, left):
-        """j moved by each finer code to the nearest value it fits exactly, rounded."""
-        two_pi = np.float32(TWO_PI)
-        for code, s in left[1:]:
-            miss = code - j * s
-            j = j + (miss - two_pi * np.rint(miss / two_pi)) / s
-        return np.rint(j)
-
-    @staticmethod
-    def _misses(j, left, first, last):
-        """The sum of squared misses of every code at candidates j; inf outside the working range."""
-        miss = sum(np.square(wrap_phase(code - j * s)) for code, s in left)
-        return np.where((j < first) | (j > last), np.inf, miss)
+        best (least sum of squared misses); where neither does, the nearest order inside. Per pixel in
+        one compiled pass (fused.code_phase)."""
+        ordered = np.stack([codes[i] for i, *_ in self.codes])  # coarse first, as self.codes
+        return fused.code_phase(carrier, ordered, *self._code_terms, self.lowest, self.low, self.high)
 
     def __call__(
         self, out: np.ndarray, min_confidence: float, fringes: np.ndarray | None = None
