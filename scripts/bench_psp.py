@@ -17,7 +17,7 @@ First a per-stage table of our path on one scene (each stage's function timed al
 the whole image), so the next bottleneck is visible; then the whole path (its row bands on --threads
 threads) beside OpenCV's per scene. To see a CPU without AVX-512 on one that has it:
 NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" OPENCV_CPU_DISABLE=AVX512-SKX (the header then
-says so).
+says so) and NUMBA_CPU_NAME=haswell (the compiled passes for AVX2).
 """
 
 from __future__ import annotations
