@@ -78,6 +78,8 @@ class CnnDepth(Node):
                 f"the calibration's camera is {cam.width}x{cam.height}"
             )
         self.info = camera_info(**cam.to_dict())
+        # the decoder's compiled pass (or numba's cached copy) and onnxruntime's first run now, not on a frame
+        self.model.infer(np.zeros((cam.height, cam.width), np.uint8))
         self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
         self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
         self.points_pub = self.create_publisher(PointCloud2, Topics.POINTS, Qos.LARGE)
