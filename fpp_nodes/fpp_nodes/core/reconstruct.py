@@ -257,8 +257,9 @@ class CompositeDecoder:
         middle = lowest + np.pi * orders
         # each code's row phase along the window, a straight line in the carrier phase per pixel (least squares)
         t = np.arange(orders + 1) - orders / 2
-        self.codes, self.row_fit_error = [], 0.0  # coarse first: (code index, intercept, rate, spacing)
-        for i in sorted(range(len(COMPOSITE_CODES)), key=lambda i: -COMPOSITE_CODES[i][0]):
+        self.code_order = sorted(range(len(COMPOSITE_CODES)), key=lambda i: -COMPOSITE_CODES[i][0])  # coarse first
+        terms, self.row_fit_error = [], 0.0  # per code in code_order: (intercept, rate, spacing)
+        for i in self.code_order:
             rows = [self._row(calibration, i, middle + TWO_PI * k, u, v) for k in t]
             slope = sum(k * r for k, r in zip(t, rows)) / (np.sum(t * t) * TWO_PI)
             intercept = sum(rows) / len(rows) - slope * middle
@@ -267,8 +268,8 @@ class CompositeDecoder:
                 *(float(np.abs(intercept + slope * (middle + TWO_PI * k) - r).max()) for k, r in zip(t, rows)),
             )
             rate = slope + 1 / COMPOSITE_CODES[i][0]  # d(predicted code) / d(carrier phase)
-            self.codes.append((i, *(a.astype(np.float32) for a in (intercept, rate, TWO_PI * rate))))
-        self._code_terms = [np.stack([code[k] for code in self.codes]) for k in (1, 2, 3)]  # (K, H, W) each
+            terms.append((intercept, rate, TWO_PI * rate))
+        self.code_terms = [np.stack(maps).astype(np.float32) for maps in zip(*terms)]  # (K, H, W) each
         self.lowest = lowest.astype(np.float32)
         # the candidates' phases: inside the working range, with half an order to spare at each end
         self.low = (np.minimum(ends[0], ends[1]) - np.pi).astype(np.float32)
@@ -325,8 +326,8 @@ class CompositeDecoder:
         phase lies in the working range (half an order to spare at each end), the one all codes fit
         best (least sum of squared misses); where neither does, the nearest order inside. Per pixel in
         one compiled pass (fused.code_phase)."""
-        ordered = np.stack([codes[i] for i, *_ in self.codes])  # coarse first, as self.codes
-        return fused.code_phase(carrier, ordered, *self._code_terms, self.lowest, self.low, self.high)
+        ordered = np.stack([codes[i] for i in self.code_order])
+        return fused.code_phase(carrier, ordered, *self.code_terms, self.lowest, self.low, self.high)
 
     def __call__(
         self, out: np.ndarray, min_confidence: float, fringes: np.ndarray | None = None
