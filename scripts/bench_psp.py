@@ -31,10 +31,9 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fpp_nodes"))
-from fpp_nodes.core.fused import sequence_phase, trusted_points  # noqa: E402
+from fpp_nodes.core.fused import trusted_points  # noqa: E402
 from fpp_nodes.core.metrics import depth_errors  # noqa: E402
-from fpp_nodes.core.phase import pooled_phase_noise, residual_bases, step_weights  # noqa: E402
-from fpp_nodes.core.reconstruct import PspReconstructor  # noqa: E402
+from fpp_nodes.core.reconstruct import PspReconstructor, multi_frequency_phase  # noqa: E402
 from fpp_nodes.core.scenes import make_scene  # noqa: E402
 from fpp_nodes.core.simulation import Rig, render  # noqa: E402
 from fpp_nodes.core.workflow import fringe_depth_mm, simulated_calibration  # noqa: E402
@@ -55,29 +54,15 @@ def timed(fn, repeat):
 def stage_table(psp: PspReconstructor, images: np.ndarray, repeat: int) -> None:
     """The multi-shot path's stages, each timed alone on the whole image in one thread."""
     patterns, limits = psp.calibration.patterns, psp.limits
-    n = patterns.steps
-    frequencies = np.asarray(patterns.frequencies, np.float64)
-    kernel_args = (
-        images,
-        0,
-        images.shape[1],
-        *step_weights(n),
-        frequencies[1:] / frequencies[:-1],
-        *residual_bases(n),
-        np.float32(limits.max_order_residual / (2 * np.pi)),
-        np.float32(255),
-    )
-    phase, modulation, valid, power = sequence_phase(*kernel_args)
-    noise = pooled_phase_noise(power, modulation, n, True)
+    phase, valid, _, noise = multi_frequency_phase(images, patterns, limits)
     height, width = phase.shape
     out = (np.empty_like(phase), np.empty_like(phase), np.empty_like(valid), np.empty((height, width, 3), np.float32))
     limits_mm = np.array([limits.max_depth_noise_mm, limits.max_depth_step_mm])
     stages = [
         (
-            f"{len(frequencies)} phases, unwrapping, saturation, residual (compiled pass 1)",
-            lambda: sequence_phase(*kernel_args),
+            f"{len(patterns.frequencies)} phases, unwrapping, checks (compiled pass 1), phase noise",
+            lambda: multi_frequency_phase(images, patterns, limits),
         ),
-        ("phase noise (5x5 pooled residual / B)", lambda: pooled_phase_noise(power, modulation, n, True)),
         (
             "depth, depth noise, trust rules, XYZ (compiled pass 2)",
             lambda: trusted_points(
