@@ -180,11 +180,12 @@ def _neighbour_rule(up, row, down, max_step, out):
 
 
 @numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
-def code_phase(carrier, codes, intercepts, rates, spacings, lowest, low, high):
+def code_phase(carrier, codes, intercepts, rates, spacings, lowest, low, high, max_miss):
     """reconstruct.CompositeDecoder.code_phase, row by row: codes, intercepts, rates and spacings are
-    (K, H, W), coarse code first; lowest, low and high the decoder's maps. Both candidates are refined
-    for every pixel and the choice is a select, so that each loop vectorizes (a candidate the finer
-    codes cannot bring into the working range misses by inf). float32 throughout."""
+    (K, H, W), coarse code first; lowest, low and high the decoder's maps; max_miss (rad) the most a
+    candidate's codes may miss by, together. Both candidates are refined for every pixel and the choice
+    is a select, so that each loop vectorizes (a candidate outside the working range or missing by more
+    counts as missing by inf; where both do, NaN). float32 throughout."""
     height, width = carrier.shape
     count = codes.shape[0]
     own = np.empty((height, width), np.float32)
@@ -192,6 +193,7 @@ def code_phase(carrier, codes, intercepts, rates, spacings, lowest, low, high):
     base, first, last = np.empty(width, np.float32), np.empty(width, np.float32), np.empty(width, np.float32)
     here, there = np.empty(width, np.float32), np.empty(width, np.float32)
     miss_here, miss_there = np.empty(width, np.float32), np.empty(width, np.float32)
+    most = np.float32(max_miss * max_miss)
     for r in range(height):
         for c in range(width):
             phase = carrier[r, c]
@@ -220,10 +222,10 @@ def code_phase(carrier, codes, intercepts, rates, spacings, lowest, low, high):
         out = own[r]
         for c in range(width):
             j, t, lo, hi, m_here, m_there = here[c], there[c], first[c], last[c], miss_here[c], miss_there[c]
-            m_here = m_here if (j >= lo) & (j <= hi) else np.inf  # outside the working range: no candidate
-            m_there = m_there if (t >= lo) & (t <= hi) else np.inf
+            m_here = m_here if (j >= lo) & (j <= hi) & (m_here <= most) else np.inf  # no candidate
+            m_there = m_there if (t >= lo) & (t <= hi) & (m_there <= most) else np.inf
             j = t if m_there < m_here else j
-            out[c] = base[c] + _TWO_PI * min(max(j, lo), hi)
+            out[c] = base[c] + _TWO_PI * j if min(m_here, m_there) < np.inf else np.float32(np.nan)
     return own
 
 

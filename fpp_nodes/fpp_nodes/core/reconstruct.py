@@ -235,8 +235,9 @@ class CompositeDecoder:
     than pi) that do; a surface smaller than min_surface_px, or a pixel beside a step, has none. A
     patch of wrong orders inside a surface is cut off by the 2 pi steps around it and judged on its own
     codes; a wrong patch whose codes agree with it needs min_surface_px of them.
-    Depth is NaN where a pixel does not keep its order, below min_confidence and where the image shows
-    no fringes: the decoder never adopts an order a pixel's own code did not give.
+    Depth is NaN where a pixel does not keep its order, below min_confidence, where the image shows
+    no fringes and where its codes name an order outside the working range (the nearest order inside
+    would be wrong): the decoder never adopts an order a pixel's own code did not give.
     """
 
     def __init__(self, calibration: Calibration, depth_range_mm: tuple[float, float], min_surface_px: int = 0):
@@ -324,10 +325,15 @@ class CompositeDecoder:
         middle of the range. From each, every finer code moves j to the nearest value it fits exactly
         (at most half a turn of that code away), and j rounded is a candidate. Of the candidates whose
         phase lies in the working range (half an order to spare at each end), the one all codes fit
-        best (least sum of squared misses); where neither does, the nearest order inside. Per pixel in
-        one compiled pass (fused.code_phase)."""
+        best (least sum of squared misses). A candidate whose codes miss by more than the decisions'
+        margin (min_separation / 2, root sum of squares) is none: where no candidate is left, NaN. So
+        a surface outside the working range says NaN, not the nearest order inside (with exact codes:
+        every pixel of planes from 50 mm before the range to 100 mm beyond it, in the default rig;
+        further out the codes begin to repeat). Per pixel in one compiled pass (fused.code_phase)."""
         ordered = np.stack([codes[i] for i in self.code_order])
-        return fused.code_phase(carrier, ordered, *self.code_terms, self.lowest, self.low, self.high)
+        return fused.code_phase(
+            carrier, ordered, *self.code_terms, self.lowest, self.low, self.high, self.min_separation / 2
+        )
 
     def __call__(
         self, out: np.ndarray, min_confidence: float, fringes: np.ndarray | None = None
@@ -342,12 +348,13 @@ class CompositeDecoder:
         own = self.code_phase(carrier, codes)
         if fringes is None:
             fringes = np.ones(carrier.shape, bool)
-        local = np.where(fringes, own, np.float32(0))
+        ordered = fringes & np.isfinite(own)  # own is NaN where the codes name an order out of range
+        local = np.where(ordered, own, np.float32(0))
         for _ in range(2):  # the order nearest the neighbourhood's median phase
             local = carrier + two_pi * np.rint((self.median(local) - carrier) / two_pi)
-        agree = (np.abs(own - local) < np.pi) & fringes
+        agree = (np.abs(own - local) < np.pi) & ordered
         vote = cv2.boxFilter(agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW), borderType=cv2.BORDER_REPLICATE)
-        surface, size = order_surfaces(local, fringes)
+        surface, size = order_surfaces(local, ordered)
         agreeing = np.bincount((surface * agree).ravel(), minlength=size.size)  # disagreeing: label 0
         share = (agreeing / np.maximum(size, 1)).astype(np.float32)
         share[0] = 0  # label 0: beside a step, on no surface

@@ -193,6 +193,31 @@ def test_the_shipped_single_shot_model_is_not_silently_wrong_where_the_papers_un
     assert rows["plane tilted 15 deg", "paper"][0] > 0.5 and rows["plane tilted 15 deg", "paper"][1] > 0.99, rows
 
 
+def test_the_shipped_single_shot_model_says_nan_beyond_its_working_range(rig, patterns):
+    """Planes 30 mm before and 30 and 70 mm beyond the working range (1000-1350 mm): the decoder used to
+    give them the nearest order inside, every pixel an order or more off; now they say NaN: at most
+    0.5% of the lit pixels get a depth (measured 0%). A plane tilted across the near end keeps its depth
+    inside the range (measured 0% off by more than 1 mm) and says NaN beyond it."""
+    from fpp_nodes.core.model import DepthModel, default_model_path
+    from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
+
+    model = DepthModel(default_model_path())
+    near, far = SURFACE_DEPTH_MM
+    for z, tilt in ((near - 30, 0.0), (far + 30, 0.0), (far + 70, 0.0), (near, 20.0)):
+        scene = plane_scene(rig, z, tilt_x_deg=tilt)
+        capture = render(rig, scene, patterns, np.random.default_rng(1))
+        depth = model(capture.images[patterns.single_shot_index])
+        lit = capture.valid
+        given = np.isfinite(depth) & lit
+        off = np.abs(depth - scene.depth_mm)[given] > 1.0
+        if tilt == 0.0:
+            assert given.mean() <= 0.005 * lit.mean(), (z, given.sum())
+        else:
+            inside = lit & (scene.depth_mm > near + 10)
+            assert off.mean() <= 0.005 and given[inside].mean() > 0.9, (off.mean(), given[inside].mean())
+            assert not given[scene.depth_mm < near - 10].any()
+
+
 def test_flying_pixels_are_both_sides_of_a_step_and_unknown_is_no_step():
     depth = np.full((5, 6), 1200.0, np.float32)
     depth[:, 3:] += 3.0  # a 3 mm step between columns 2 and 3

@@ -76,6 +76,25 @@ def test_exact_phases_decode_to_the_exact_depth_on_every_family(rig, patterns, c
     assert given.sum() > 0.97 * lit.sum() and np.median(confidence[lit]) > 0.99
 
 
+def test_a_surface_outside_the_working_range_is_nan_not_the_nearest_order_inside(rig, patterns, calibration):
+    """Planes 10 and 40 mm before the working range and 10 and 80 mm beyond it: their codes name
+    orders outside the range, or miss every order inside by more than the decisions' margin, so every
+    pixel is NaN, not the nearest order inside (an order or more off). A plane tilted across the
+    range's near end keeps the exact depth inside the range and says NaN beyond it."""
+    decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+    for z in (SURFACE_DEPTH_MM[0] - 40, SURFACE_DEPTH_MM[0] - 10, SURFACE_DEPTH_MM[1] + 10, SURFACE_DEPTH_MM[1] + 80):
+        renderer = SceneRenderer(rig, plane_scene(rig, z))
+        depth, confidence = decoder(as_network_output(*exact_phases(renderer, patterns)), 0.5)
+        assert np.isnan(depth).all() and np.nanmax(confidence) == 0, z
+    scene = plane_scene(rig, SURFACE_DEPTH_MM[0], tilt_x_deg=20.0)
+    renderer = SceneRenderer(rig, scene)
+    depth, _ = decoder(as_network_output(*exact_phases(renderer, patterns)), 0.5)
+    given = np.isfinite(depth)
+    assert np.abs(depth - scene.depth_mm)[given].max() < 0.05
+    assert not given[scene.depth_mm < SURFACE_DEPTH_MM[0] - 10].any()
+    assert given[scene.depth_mm > SURFACE_DEPTH_MM[0] + 5].mean() > 0.97
+
+
 def test_a_surface_outvotes_scattered_order_errors_and_a_code_of_noise_is_nan(rig, patterns, calibration):
     """A fifth of the pixels' codes point at a wrong order (1-5 orders off): the neighbourhood outvotes
     every one (NaN) and keeps the rest. A code that carries nothing (uniform noise) gets no vote: NaN,
