@@ -16,7 +16,7 @@ from fpp_nodes.core.reconstruct import (
     reconstruct_ftp,
     trusted_depth,
 )
-from fpp_nodes.core.scenes import make_scene, plane_scene
+from fpp_nodes.core.scenes import SURFACE_DEPTH_MM, make_scene, plane_scene
 from fpp_nodes.core.simulation import render
 from fpp_nodes.core.workflow import fringe_depth_mm, held_out_scenes, score
 
@@ -199,7 +199,6 @@ def test_the_shipped_single_shot_model_says_nan_beyond_its_working_range(rig, pa
     0.5% of the lit pixels get a depth (measured 0%). A plane tilted across the near end keeps its depth
     inside the range (measured 0% off by more than 1 mm) and says NaN beyond it."""
     from fpp_nodes.core.model import DepthModel, default_model_path
-    from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
 
     model = DepthModel(default_model_path())
     near, far = SURFACE_DEPTH_MM
