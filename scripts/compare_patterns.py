@@ -21,7 +21,7 @@ import numpy as np
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.phase import ftp_wrapped_phase
 from fpp_nodes.core.reconstruct import CompositeDecoder, composite_ftp_phases
-from fpp_nodes.core.scenes import SURFACE_DEPTH_MM, plane_scene
+from fpp_nodes.core.scenes import plane_scene
 from fpp_nodes.core.simulation import Rig, Scene, SceneRenderer, render
 
 from machine import describe
@@ -49,16 +49,15 @@ def main():
     print(describe({"numpy/opencv": 1}, ("numpy", "cv2")))
     rig = Rig()
     u, v = np.arange(rig.width)[None, :], np.arange(rig.height)[:, None]
-    model = Calibration.load(default_calibration_path()).model
-    span = np.abs(np.subtract(*(model.phase_at_depth(z, u, v) for z in SURFACE_DEPTH_MM))) / (2 * np.pi)
+    calibration = Calibration.load(default_calibration_path())
+    near, far = calibration.working_range_mm
+    span = np.abs(np.subtract(*(calibration.model.phase_at_depth(z, u, v) for z in (near, far)))) / (2 * np.pi)
     print(
-        f"\nthe working range {SURFACE_DEPTH_MM[0]:g}-{SURFACE_DEPTH_MM[1]:g} mm spans "
-        f"{span.min():.1f}-{span.max():.1f} "
+        f"\nthe working range {near:g}-{far:g} mm spans {span.min():.1f}-{span.max():.1f} "
         "fringe orders of the carrier across the image"
     )
-    calibration = Calibration.load(default_calibration_path())
     composite = calibration.patterns
-    decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+    decoder = CompositeDecoder(calibration)
     base, frequencies = Rig(), composite.code_frequencies
     rows = []
     for name, rig, scene in conditions(base):

@@ -12,14 +12,12 @@ On disk (a folder per set and split, one file per sample):
 
     <out>/<set>/dataset.yaml           what made it: set, counts, seeds, rig, pattern set, calibration
     <out>/<set>/<split>/<seed>.npz     input  uint8 (H, W)   the fringe image
-                                       label  uint16 (H, W)  PSP depth, (mm - 1000) * 100, 0 = invalid
-                                       truth  uint16 (H, W)  exact depth, same encoding, 0 = shadow
+                                       label  float32 (H, W) PSP depth in mm, NaN = invalid
+                                       truth  float32 (H, W) exact depth in mm, NaN = shadow
      families/surface/composite: phase  float32 (H, W)     multi-shot absolute phase, NaN invalid
                                  fringe float16 (2, H, W)  its numerator and denominator
                                  family str                the scene family
                  composite (and bags): code   float16 (2 x codes, H, W)  the code gratings (phase_targets)
-
-The uint16 encoding holds 1000.01-1655.35 mm in 0.01 mm steps (rounding adds 0.003 mm RMS).
 """
 
 from __future__ import annotations
@@ -61,27 +59,15 @@ SETS = {
 # the held-out ones (never in training, validation or any design choice) measure generalisation.
 TRAIN_FAMILIES = ("bust", "freeform", "blocks", "planes", "floating")
 HELD_OUT_FAMILIES = ("spheres", "thin", "objects")
-DEPTH_OFFSET_MM, DEPTH_STEP_MM = 1000.0, 0.01
-FORMAT_VERSION = 2  # 2: the composite has two code gratings
-
-
-def encode_depth(depth_mm: np.ndarray) -> np.ndarray:
-    code = np.rint((np.nan_to_num(depth_mm, nan=DEPTH_OFFSET_MM) - DEPTH_OFFSET_MM) / DEPTH_STEP_MM)
-    code = np.clip(code, 0, 65535).astype(np.uint16)
-    code[~np.isfinite(depth_mm)] = 0
-    return code
-
-
-def decode_depth(code: np.ndarray) -> np.ndarray:
-    depth = code.astype(np.float32) * np.float32(DEPTH_STEP_MM) + np.float32(DEPTH_OFFSET_MM)
-    depth[code == 0] = np.nan
-    return depth
+FORMAT_VERSION = 3  # 2: the composite has two code gratings; 3: depth in float32 mm, at any standoff
 
 
 def load_sample(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(input uint8, label mm float32 NaN-invalid, truth mm float32 NaN-shadow) of one sample."""
     with np.load(path, allow_pickle=False) as z:
-        return z["input"], decode_depth(z["label"]), decode_depth(z["truth"])
+        if z["label"].dtype != np.float32:  # format 2 held 1000-1655 mm only, as uint16
+            raise ValueError(f"{path} was made by an earlier version of training.dataset: make the set again")
+        return z["input"], z["label"], z["truth"]
 
 
 def sample_family(path, default: str = "?") -> str:
@@ -136,8 +122,8 @@ def make_sample(kind: str, seed: int, families: bool = False, surface_mm: float 
     truth = np.where(capture.valid, capture.depth_mm, np.nan)
     sample = {
         "input": capture.images[patterns.single_shot_index],
-        "label": encode_depth(rec.depth_mm),
-        "truth": encode_depth(truth),
+        "label": rec.depth_mm.astype(np.float32),
+        "truth": truth.astype(np.float32),
     }
     if families:
         sample.update(phase_targets(capture.images, rec, psp.calibration), family=kind)
@@ -214,7 +200,6 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
                 "first_seeds": {s: seed_of(set_name, s, 0) for s in SPLITS},
                 "input": patterns.names()[patterns.single_shot_index],
                 "label": "multi-shot PSP depth",
-                "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},
                 "rig": rig.to_dict(),
                 "calibration": calibration.to_dict(),
             },
@@ -233,7 +218,7 @@ def write_bag_set(
     """A data set from a recorded bag of full fringe sequences (the path of a user with real hardware:
     record, label with multi-shot, train). Frames are assembled into sequences as capture_sequence
     does; each complete sequence becomes a sample whose label is its multi-shot reconstruction. There
-    is no exact depth for a real scene: truth is all 0 (invalid). Returns the number of samples."""
+    is no exact depth for a real scene: truth is all NaN. Returns the number of samples."""
     from fpp_msgs_py import image_to_numpy, stamp_ns  # rosbags' messages have sensor_msgs' fields
     from fpp_nodes.bag import TYPESTORE, read_bag
     from fpp_nodes.core.sequence import SequenceAssembler, ShownPatterns
@@ -268,8 +253,8 @@ def write_bag_set(
             np.savez_compressed(
                 folder / f"{sequence.stamps_ns[0]}.npz",
                 input=sequence.images[patterns.single_shot_index],
-                label=encode_depth(rec.depth_mm),
-                truth=np.zeros(rec.depth_mm.shape, np.uint16),
+                label=rec.depth_mm.astype(np.float32),
+                truth=np.full(rec.depth_mm.shape, np.nan, np.float32),
                 **composite,
             )
             count += 1
@@ -283,9 +268,8 @@ def write_bag_set(
                 "counts": {split: count},
                 "input": patterns.names()[patterns.single_shot_index],
                 "label": "multi-shot PSP depth",
-                "truth": "none (a recorded scene): all 0",
+                "truth": "none (a recorded scene): all NaN",
                 "sequences_dropped": assembler.stats.dropped,
-                "depth_encoding": {"offset_mm": DEPTH_OFFSET_MM, "step_mm": DEPTH_STEP_MM, "invalid": 0},
                 "calibration": calibration.to_dict(),
             },
             sort_keys=False,

@@ -25,7 +25,6 @@ from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import network_input, trusted_single_shot
 from fpp_nodes.core.reconstruct import CompositeDecoder, reconstruct_ftp
-from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
 from fpp_nodes.core.workflow import fringe_depth_mm
 
 from .dataset import load_sample, sample_family, split_files
@@ -62,7 +61,7 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
     calibration = Calibration.from_dict(info["calibration"])
     if calibration.code_models:  # the classical baseline on our pattern
-        decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+        decoder = CompositeDecoder(calibration)
         models.append(("FTP (composite)", lambda image: reconstruct_ftp(image, calibration, decoder=decoder).depth_mm))
     models.append(("multi-shot (the label)", None))  # what all the sequence's images measure: the reference
     held_out = set(info.get("held_out_families", []))

@@ -39,7 +39,6 @@ from fpp_nodes.core.model import (
 )
 from fpp_nodes.core.patterns import PatternSet
 from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits
-from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
 
 from .dataset import load_sample, sample_family, split_files
 from .train import load_checkpoint, model_from_checkpoint, predict
@@ -267,12 +266,10 @@ def export(
     }
     if phase_aware:
         card["calibration"] = calibration
-        if cfg.arch == "composite":  # the range the training scenes span: the code's orders are placed on it
-            decoder = CompositeDecoder(Calibration.from_dict(calibration), SURFACE_DEPTH_MM)
-            card["decoding"] = {"depth_range_mm": list(SURFACE_DEPTH_MM)}
-        else:
-            decoder, card["decoding"] = PhaseOrderDecoder(Calibration.from_dict(calibration)), {}
-        card["decoding"].update(choose_decoding(model, str(data), decoder))
+        decoder = (CompositeDecoder if cfg.arch == "composite" else PhaseOrderDecoder)(
+            Calibration.from_dict(calibration)
+        )
+        card["decoding"] = choose_decoding(model, str(data), decoder)
     out.with_suffix(".yaml").write_text(yaml.safe_dump(card, sort_keys=False))
     return card
 

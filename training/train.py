@@ -34,7 +34,6 @@ from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import PhaseOrderDecoder, network_input
 from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.reconstruct import CompositeDecoder
-from fpp_nodes.core.scenes import SURFACE_DEPTH_MM
 from fpp_nodes.pictures import depth_colours
 
 from .dataset import load_phase_targets, load_sample, split_files
@@ -390,7 +389,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
             yaml.safe_load((Path(config.data) / "dataset.yaml").read_text())["calibration"]
         )
         if config.arch == "composite":
-            decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+            decoder = CompositeDecoder(calibration)
             train_set = CompositeSet(train_files, config.augment, config.crop, config.seed + rank)
             val_set = CompositeSet(val_files)
         else:

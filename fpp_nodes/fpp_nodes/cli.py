@@ -27,7 +27,7 @@ from .core.calibration import Calibration, CalibrationError, CameraIntrinsics, b
 from .core.metrics import depth_errors
 from .core.patterns import PatternSet, generate_patterns
 from .core.reconstruct import CompositeDecoder, PspReconstructor, QualityLimits, Reconstruction, reconstruct_ftp
-from .core.scenes import SCENE_KINDS, SURFACE_DEPTH_MM, board_poses, board_scene, make_scene, scene_from_file
+from .core.scenes import SCENE_KINDS, board_poses, board_scene, make_scene, scene_from_file
 from .core.simulation import Rig, render, render_pose
 from .core.workflow import (
     CALIBRATION_DEPTHS_MM,
@@ -144,7 +144,21 @@ def _read_sensor(path) -> tuple[CameraIntrinsics, PatternSet]:
         ) from None
 
 
+def _working_range(text: str | None) -> tuple[float, float] | None:
+    """--working-range NEAR:FAR, checked before anything is read or fitted."""
+    if text is None:
+        return None
+    try:
+        near, far = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise CalibrationError(f"--working-range {text!r} is not NEAR:FAR in mm") from None
+    if not 0 < near < far < np.inf:
+        raise CalibrationError(f"--working-range {text!r} needs 0 < NEAR < FAR")
+    return near, far
+
+
 def cmd_calibrate(args) -> None:
+    args.working_range = _working_range(args.working_range)
     camera, patterns = _read_sensor(args.sensor)
     if args.board:
         return _calibrate_board(args, Board.parse(args.board), patterns)
@@ -158,17 +172,29 @@ def cmd_calibrate(args) -> None:
         except ValueError:
             raise CalibrationError(f"plane {item!r}: depth {depth!r} is not a number") from None
         stacks.append(io.read_stack(io.image_paths([folder])))
-    calibration, residuals = calibrate_from_planes(stacks, depths, camera, patterns, args.reference_depth)
-    calibration.save(args.out)
+    calibration, residuals = calibrate_from_planes(
+        stacks, depths, camera, patterns, args.reference_depth, working_range_mm=args.working_range
+    )
+    _save(calibration, args.out)
     for z, r in zip(depths, residuals):
         print(f"plane {z:8.2f} mm: fit RMSE {r * 1000:7.2f} um")
     print(f"wrote {args.out}")
 
 
+def _save(calibration: Calibration, path) -> None:
+    """Write a calibration once its working range is known to fit the composite's code."""
+    if calibration.code_models:
+        CompositeDecoder(calibration)  # a clear error if the range spans more orders than the code tells
+    calibration.save(path)
+    print(f"working range {calibration.working_range_mm[0]:g}-{calibration.working_range_mm[1]:g} mm")
+
+
 def _calibrate_board(args, board: Board, patterns: PatternSet) -> None:
     poses = [_read_pose(folder) for folder in tqdm(args.planes, desc="read poses", disable=None)]
-    calibration, report = calibrate_from_board(poses, board, patterns, args.reference_depth, args.lens)
-    calibration.save(args.out)
+    calibration, report = calibrate_from_board(
+        poses, board, patterns, args.reference_depth, args.lens, working_range_mm=args.working_range
+    )
+    _save(calibration, args.out)
     print(f"{'pose':24} {'depth mm':>9} {'camera px':>10} {'projector px':>13} {'corners':>8}")
     for p in report.poses:
         print(f"{p.name:24} {p.depth_mm:9.1f} {p.camera_px:10.3f} {p.projector_px:13.3f} {p.corners:8d}")
@@ -202,7 +228,7 @@ def _reconstruct(
             quality,
             np.full(depth.shape, np.nan, np.float32),
         )
-    decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM) if calibration.code_models else None
+    decoder = CompositeDecoder(calibration) if calibration.code_models else None
     return reconstruct_ftp(images[index], calibration, limits, decoder)
 
 
@@ -313,7 +339,7 @@ def cmd_demo(args) -> None:
     calibration, residuals = simulated_calibration(rig, patterns, seed=args.seed)
     calibration.save(out / "calibration.yaml")
     print("  fit RMSE per plane (um): " + ", ".join(f"{r * 1000:.1f}" for r in residuals))
-    psp, decoder = PspReconstructor(calibration), CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+    psp, decoder = PspReconstructor(calibration), CompositeDecoder(calibration)
     rows, written = [], []
     for name, scene, seed in tqdm(
         list(held_out_scenes(rig, args.scenes, args.seed + 1000)), desc="scenes", disable=None
@@ -435,6 +461,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--lens", choices=tuple(LENS_MODELS), default="k1", help="with --board: the distortion terms fitted")
     p.add_argument("--reference-depth", type=float, default=None, help="background depth in mm (default: median plane)")
+    p.add_argument(
+        "--working-range",
+        metavar="NEAR:FAR",
+        help="depths in mm where surfaces may be; the single-shot path says NaN outside (default: the planes' "
+        "or boards' depths)",
+    )
     p.add_argument("--out", default="calibration.yaml")
     p.set_defaults(func=cmd_calibrate)
 

@@ -31,7 +31,7 @@ def workdir(tmp_path_factory):
         d / "cal.yaml",
     )
     assert r.returncode == 0, r.stderr
-    assert r.stdout.count("fit RMSE") == 3
+    assert r.stdout.count("fit RMSE") == 3 and "working range 1100-1300 mm" in r.stdout  # the planes' depths
     r = fpp("simulate", "--scene", "objects", "--seed", 5, "--out", d / "scene")
     assert r.returncode == 0, r.stderr
     return d
@@ -128,6 +128,18 @@ def bad_inputs(workdir, tmp_path):
         ),
         (("calibrate", f"{scene}:1200", "--sensor", scene / "sensor.yaml"), "three or more different depths"),
         (("calibrate", f"{scene}:abc", "--sensor", scene / "sensor.yaml"), "not a number"),
+        (
+            ("calibrate", f"{scene}:1200", "--sensor", scene / "sensor.yaml", "--working-range", "1300:1100"),
+            "NEAR < FAR",
+        ),
+        (
+            (
+                "calibrate",
+                *(f"{workdir}/plane{z}:{z}" for z in (1100, 1200, 1300)),
+                *("--sensor", scene / "sensor.yaml", "--working-range", "900:1500", "--out", tmp_path / "c.yaml"),
+            ),
+            "spans up to",
+        ),
         (("evaluate", tmp_path / "none.npy", scene / "depth_gt_mm.npy"), "cannot read"),
         (("simulate", "--scene", tmp_path / "none.npy", "--out", tmp_path / "o"), "does not exist"),
     ]
@@ -223,8 +235,11 @@ def test_board_calibration_from_pose_folders(tmp_path):
     assert r.returncode == 0, r.stderr
     rows = [line.split() for line in r.stdout.splitlines() if line.startswith("pose_")]
     assert len(rows) == 6 and all(float(row[2]) < 0.1 for row in rows), r.stdout  # camera px per pose
-    camera = yaml.safe_load((tmp_path / "cal.yaml").read_text())["camera"]
+    written = yaml.safe_load((tmp_path / "cal.yaml").read_text())
+    camera = written["camera"]
     assert abs(camera["distortion"][0] + 0.9) < 0.15 and camera["distortion"][1:] == [0.0] * 4  # k1 only
+    depths = [float(row[1]) for row in rows]  # the working range: the boards' depths
+    assert written["working_range_mm"] == pytest.approx([min(depths), max(depths)], abs=0.05)
     (poses[3] / "board.png").unlink()
     r = fpp(*args, "--out", tmp_path / "x.yaml")
     assert r.returncode == 2 and "pose_03: no board.png" in r.stderr and "Traceback" not in r.stderr

@@ -213,10 +213,12 @@ def calibrate_from_board(
     patterns: PatternSet,
     reference_depth_mm: float | None = None,
     lens: str = "k1",
+    working_range_mm: tuple[float, float] | None = None,
 ) -> tuple[Calibration, BoardReport]:
     """The rig's calibration from board poses, and what else it found (BoardReport). lens: which
-    distortion terms camera and projector get (LENS_MODELS). Clear errors for a pose whose board is
-    not found or not lit, too few poses, and poses that all face one way."""
+    distortion terms camera and projector get (LENS_MODELS); the working range is the boards' depths
+    (at their centres) unless given. Clear errors for a pose whose board is not found or not lit, too
+    few poses, and poses that all face one way."""
     if lens not in LENS_MODELS:
         raise CalibrationError(f"lens model {lens!r} is not one of {', '.join(LENS_MODELS)}")
     if len(poses) < MIN_POSES:
@@ -291,7 +293,8 @@ def calibrate_from_board(
     )
     reference = float(np.median(depths)) if reference_depth_mm is None else float(reference_depth_mm)
     report = BoardReport(reports, _intrinsics(k_proj, d_proj, projector_size), rotation, translation.ravel(), fit_mm)
-    return Calibration(camera, model, patterns, reference, code_models), report
+    working_range = working_range_mm or (min(depths), max(depths))
+    return Calibration(camera, model, patterns, reference, code_models, working_range), report
 
 
 def model_from_geometry(camera, patterns, rotation, translation, k_proj, d_proj, depth_range_mm, step: int = 4):

@@ -255,9 +255,17 @@ class Calibration:
     patterns: PatternSet
     reference_depth_mm: float  # where the background sits; FTP uses it to choose the global fringe order
     code_models: tuple[RationalModel, ...] = ()
+    # (near, far) mm: where surfaces may be, which places the composite code's orders (CompositeDecoder);
+    # by default the depths the calibration saw. None: not given (calibrations before it; the
+    # multi-shot path does not need it)
+    working_range_mm: tuple[float, float] | None = None
 
     def __post_init__(self):
         self.code_models = tuple(self.code_models)
+        if self.working_range_mm is not None:
+            near, far = self.working_range_mm = tuple(float(z) for z in self.working_range_mm)
+            if not (np.isfinite(far) and 0 < near < far):
+                raise CalibrationError(f"working_range_mm must be [near, far] with 0 < near < far, got {[near, far]}")
         codes = len(COMPOSITE_CODES) if self.patterns.single_shot == "composite" else 0
         if len(self.code_models) != codes:
             raise CalibrationError(
@@ -268,7 +276,11 @@ class Calibration:
     def with_papers_single_shot(self) -> Calibration:
         """The same rig showing the paper's single-shot frame instead of the composite: 16 frames."""
         return Calibration(
-            self.camera, self.model, replace(self.patterns, single_shot="paper"), self.reference_depth_mm
+            self.camera,
+            self.model,
+            replace(self.patterns, single_shot="paper"),
+            self.reference_depth_mm,
+            working_range_mm=self.working_range_mm,
         )
 
     def code_row_phase_at_depth(self, code: int, depth, u, v):
@@ -284,6 +296,7 @@ class Calibration:
             "model": {"terms": list(TERMS), "c": self.model.c.tolist(), "d": self.model.d.tolist()},
             "patterns": self.patterns.to_dict(),
             "reference_depth_mm": float(self.reference_depth_mm),
+            **({"working_range_mm": list(self.working_range_mm)} if self.working_range_mm else {}),
             **(
                 {"code_models": [{"c": m.c.tolist(), "d": m.d.tolist()} for m in self.code_models]}
                 if self.code_models
@@ -315,13 +328,18 @@ class Calibration:
             patterns = PatternSet.from_dict(d["patterns"])
             reference = float(d["reference_depth_mm"])
             code_models = [RationalModel(m["c"], m["d"]) for m in d.get("code_models", [])]
+            working_range = d.get("working_range_mm")
+            if working_range is not None:
+                if len(working_range) != 2:
+                    raise ValueError(f"working_range_mm must be [near, far], got {working_range}")
+                working_range = tuple(float(z) for z in working_range)
         except KeyError as e:
             raise CalibrationError(f"calibration is missing {e.args[0]!r}") from None
         except PatternError as e:
             raise CalibrationError(str(e)) from None
         except (TypeError, ValueError) as e:
             raise CalibrationError(f"calibration has a malformed value: {e}") from None
-        return cls(camera, model, patterns, reference, code_models)
+        return cls(camera, model, patterns, reference, code_models, working_range)
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.to_dict(), sort_keys=False)

@@ -95,11 +95,7 @@ class DepthModel:
                 self.decoder = (
                     PhaseOrderDecoder(calibration)
                     if self.output == "fringe_order"
-                    else CompositeDecoder(
-                        calibration,
-                        tuple(self.card["decoding"]["depth_range_mm"]),
-                        int(self.card["decoding"].get("min_surface_px", 0)),
-                    )
+                    else CompositeDecoder(calibration, int(self.card["decoding"].get("min_surface_px", 0)))
                 )
             except (KeyError, TypeError, ValueError) as e:  # CalibrationError and PhaseError are ValueErrors
                 raise ModelError(

@@ -216,8 +216,8 @@ class CompositeDecoder:
     """The composite pattern's phases (the carrier's and each code grating's) -> depth, for a
     calibration with code models.
 
-    Each pixel's carrier order is one of K consecutive orders that span the working range
-    (depth_range_mm, with equal slack at both ends; K the coarsest code's orders). A code's phase is
+    Each pixel's carrier order is one of K consecutive orders that span the calibration's working
+    range (with equal slack at both ends; K the coarsest code's orders). A code's phase is
     its row phase plus the absolute carrier phase / K_i, so each candidate order predicts it about
     2 pi / K_i from the next. Across the candidates the row phase drifts (the projector row a pixel
     sees moves with depth) almost linearly in the carrier phase: fitted so per pixel (within a few
@@ -240,19 +240,25 @@ class CompositeDecoder:
     would be wrong): the decoder never adopts an order a pixel's own code did not give.
     """
 
-    def __init__(self, calibration: Calibration, depth_range_mm: tuple[float, float], min_surface_px: int = 0):
+    def __init__(self, calibration: Calibration, min_surface_px: int = 0):
         self.min_surface_px = min_surface_px
         if not calibration.code_models:
             raise PhaseError("the composite decoder needs a calibration made with the composite pattern (code models)")
+        if calibration.working_range_mm is None:
+            raise PhaseError(
+                "the calibration has no working range: calibrate again (fpp calibrate), or add "
+                "working_range_mm: [near, far] (mm, where surfaces may be) to its file"
+            )
+        near, far = calibration.working_range_mm
         cam = calibration.camera
         u, v = cam.ideal_pixels()
-        ends = [np.broadcast_to(calibration.model.phase_at_depth(z, u, v), cam.shape) for z in depth_range_mm]
+        ends = [np.broadcast_to(calibration.model.phase_at_depth(z, u, v), cam.shape) for z in (near, far)]
         span = np.abs(ends[1] - ends[0]) / TWO_PI
         orders = max(k for k, _ in COMPOSITE_CODES)
         if span.max() > orders - 1:
             raise PhaseError(
-                f"the working range {depth_range_mm[0]:g}-{depth_range_mm[1]:g} mm spans up to {span.max():.1f} "
-                f"fringe orders; the composite's code tells {orders} apart"
+                f"the calibration's working range {near:g}-{far:g} mm spans up to {span.max():.1f} fringe orders; "
+                f"the composite's code tells {orders} apart: narrow it (fpp calibrate --working-range)"
             )
         lowest = np.minimum(ends[0], ends[1]) - (orders - span) / 2 * TWO_PI
         middle = lowest + np.pi * orders
@@ -298,7 +304,7 @@ class CompositeDecoder:
     def _separation(self, calibration: Calibration, ends, u, v, step: int = 8) -> float:
         """How close the codes of two orders in the working range come, over every step-th pixel (rad,
         the root sum of squares of each code's difference)."""
-        u, v = u[:, ::step], v[::step]
+        u, v = (np.broadcast_to(a, ends[0].shape)[::step, ::step] for a in (u, v))  # a lens: full maps
         lo = np.minimum(ends[0], ends[1])[::step, ::step]
         hi = np.maximum(ends[0], ends[1])[::step, ::step]
         codes, inside = [], []

@@ -13,7 +13,7 @@ from .metrics import DepthErrors, depth_errors, noise_limited_depth_std
 from .patterns import COMPOSITE_CODES, PatternSet
 from .phase import TWO_PI, code_lobe_centres, ftp_code_phases, unwrap_spatial
 from .reconstruct import QualityLimits, Reconstruction, multi_frequency_phase
-from .scenes import make_scene, plane_scene
+from .scenes import SURFACE_DEPTH_MM, make_scene, plane_scene
 from .simulation import Rig, render
 
 CALIBRATION_DEPTHS_MM = (1100.0, 1150.0, 1200.0, 1250.0, 1300.0)
@@ -32,9 +32,11 @@ def calibrate_from_planes(
     reference_depth_mm: float | None = None,
     sample_step: int = 4,
     limits: QualityLimits = QualityLimits(),
+    working_range_mm: tuple[float, float] | None = None,
 ):
     """Fit the rational model from fringe stacks of flat planes square to the camera at known depths
-    (a plate on a translation stage). Returns (calibration, fit RMSE in mm per plane).
+    (a plate on a translation stage). Returns (calibration, fit RMSE in mm per plane). The working
+    range is the planes' depths unless given.
 
     Every sample_step-th trusted pixel of every plane is a sample (u, v, phi, z). With the composite
     single-shot frame, the code model is fitted the same way to the row phase plus the carrier's
@@ -81,7 +83,8 @@ def calibrate_from_planes(
         code_models.append(
             fit_rational_model(u, v, chi, np.repeat(np.asarray(depths_mm, float), chi.size // len(code)))
         )
-    return Calibration(camera, model, patterns, reference, code_models), residuals
+    working_range = working_range_mm or (min(depths_mm), max(depths_mm))
+    return Calibration(camera, model, patterns, reference, code_models, working_range), residuals
 
 
 CODE_BORDER_PX = 24  # FTP is unreliable this near the image's and the lit area's edges
@@ -114,12 +117,13 @@ def code_row_phases(composite: np.ndarray, phase: np.ndarray, valid: np.ndarray)
 
 
 def simulated_calibration(
-    rig: Rig, patterns: PatternSet, seed: int = 0, depths_mm=CALIBRATION_DEPTHS_MM
+    rig: Rig, patterns: PatternSet, seed: int = 0, depths_mm=CALIBRATION_DEPTHS_MM, working_range_mm=SURFACE_DEPTH_MM
 ) -> tuple[Calibration, list[float]]:
-    """Calibrate the simulated rig the way a user calibrates a real one: render noisy planes, fit."""
+    """Calibrate the simulated rig the way a user calibrates a real one: render noisy planes, fit.
+    The working range defaults to where the simulated scenes put surfaces."""
     rng = np.random.default_rng(seed)
     stacks = [render(rig, plane_scene(rig, z), patterns, rng).images for z in depths_mm]
-    return calibrate_from_planes(stacks, list(depths_mm), rig.camera(), patterns)
+    return calibrate_from_planes(stacks, list(depths_mm), rig.camera(), patterns, working_range_mm=working_range_mm)
 
 
 @dataclass

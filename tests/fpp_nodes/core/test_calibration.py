@@ -5,7 +5,7 @@ import pytest
 import yaml
 
 from fpp_nodes.core.calibration import Calibration, CalibrationError, RationalModel, back_project, pixel_grid
-from fpp_nodes.core.scenes import plane_scene
+from fpp_nodes.core.scenes import SURFACE_DEPTH_MM, plane_scene
 from fpp_nodes.core.simulation import render
 from fpp_nodes.core.workflow import calibrate_from_planes
 
@@ -38,6 +38,7 @@ def test_calibration_from_noise_free_planes_recovers_the_rendering_coefficients(
     assert np.max(np.abs(fitted.c - true.c) * size) < 3e-5 * np.sum(np.abs(true.c) * size)
     assert np.max(np.abs(fitted.d - true.d) * size) < 3e-5 * np.sum(np.abs(true.d) * size)
     assert max(residuals) < 5e-3  # mm: the interpolation ripple, nothing else
+    assert calibration.working_range_mm == (1100.0, 1300.0)  # the planes' depths
 
 
 def test_calibration_of_the_noisy_rig_predicts_depth_to_micrometres(rig, patterns, calibration):
@@ -54,6 +55,7 @@ def test_calibration_file_round_trips(calibration, tmp_path):
     np.testing.assert_array_equal(loaded.model.c, calibration.model.c)
     np.testing.assert_array_equal(loaded.model.d, calibration.model.d)
     assert loaded.patterns == calibration.patterns and loaded.camera == calibration.camera
+    assert loaded.working_range_mm == calibration.working_range_mm == (1000.0, 1350.0)
     assert yaml.safe_load(path.read_text())["version"] == 1
     assert "distortion" not in yaml.safe_load(path.read_text())["camera"]  # files without a lens stay as they were
     lens = replace(calibration, camera=replace(calibration.camera, distortion=(-0.9, 0.1, 1e-4, -2e-4, 0.0)))
@@ -73,6 +75,8 @@ def test_calibration_file_round_trips(calibration, tmp_path):
         (lambda d: d["patterns"].update(steps=2), "steps must be >= 3"),
         (lambda d: d["camera"].update(fx=-5), "focal lengths"),
         (lambda d: d["camera"].update(distortion=[0.1, 0.2]), "distortion must be 5 finite numbers"),
+        (lambda d: d.update(working_range_mm=[1350.0, 1000.0]), "0 < near < far"),
+        (lambda d: d.update(working_range_mm=[1000.0]), "must be \\[near, far\\]"),
     ],
 )
 def test_malformed_calibration_files_are_clear_errors(calibration, tmp_path, edit, message):
@@ -126,6 +130,7 @@ def test_the_shipped_calibration_is_what_fpp_demo_makes(rig, patterns):
     shipped = Calibration.load(default_calibration_path())
     made, _ = simulated_calibration(rig, patterns, seed=0)
     assert shipped.patterns == made.patterns and shipped.camera == made.camera
+    assert shipped.working_range_mm == made.working_range_mm == SURFACE_DEPTH_MM
     true = rig.true_model(patterns)
     u, v = pixel_grid((rig.height, rig.width))
     for z in np.linspace(1050.0, 1350.0, 7):

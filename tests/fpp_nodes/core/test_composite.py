@@ -11,7 +11,8 @@ from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.phase import PhaseError
 from fpp_nodes.core.reconstruct import CompositeDecoder, order_surfaces
 from fpp_nodes.core.scenes import FAMILY_NAMES, SURFACE_DEPTH_MM, make_scene, plane_scene
-from fpp_nodes.core.simulation import SceneRenderer, random_rig
+from fpp_nodes.core.simulation import Rig, SceneRenderer, random_rig
+from fpp_nodes.core.workflow import simulated_calibration
 
 
 def exact_phases(renderer, patterns):
@@ -47,7 +48,7 @@ def test_each_pixel_names_its_order_with_code_errors_inside_the_margin(rig, patt
     """The decision, coarse code first: every pixel of a plane at each end of the working range keeps
     its order with each code 0.3 rad off either way (0.42 rad together, inside the margin of 0.47 rad);
     0.7 rad off the fine code, most pixels of the nearest plane name another order."""
-    decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+    decoder = CompositeDecoder(calibration)
     for z in SURFACE_DEPTH_MM[::-1]:
         renderer = SceneRenderer(rig, plane_scene(rig, z))
         carrier, codes = exact_phases(renderer, patterns)
@@ -65,7 +66,7 @@ def test_exact_phases_decode_to_the_exact_depth_on_every_family(rig, patterns, c
     """Given the true phases, the code picks the right order at every lit pixel: what is left is the
     calibration's error (< 0.05 mm), never an order (9-17 mm); only pixels at a step (whose
     neighbourhood is mostly the other surface) say NaN."""
-    decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+    decoder = CompositeDecoder(calibration)
     scene_rig = random_rig(np.random.default_rng(3), rig)
     scene = make_scene(scene_rig, family, 3)
     renderer = SceneRenderer(scene_rig, scene)
@@ -76,12 +77,41 @@ def test_exact_phases_decode_to_the_exact_depth_on_every_family(rig, patterns, c
     assert given.sum() > 0.97 * lit.sum() and np.median(confidence[lit]) > 0.99
 
 
+def test_a_rig_at_another_standoff_decodes_in_its_own_working_range(near_rig, near_calibration):
+    """A rig at 600 mm (the simulated default stands at 1200 mm), calibrated from planes at 540-660 mm:
+    its working range is the planes' depths, and exact phases decode separated objects on a plane there
+    to their exact depth (the default rig's 1000-1350 mm would have said NaN at every pixel)."""
+    assert near_calibration.working_range_mm == (540.0, 660.0)
+    decoder = CompositeDecoder(near_calibration)
+    scene = make_scene(near_rig, "objects", 21)
+    renderer = SceneRenderer(near_rig, scene)
+    lit = renderer.lit[renderer.crop]
+    depth, _ = decoder(as_network_output(*exact_phases(renderer, near_rig.pattern_set())), 0.5, lit)
+    given = np.isfinite(depth)
+    assert not (given & ~lit).any() and np.abs(depth - scene.depth_mm)[given].max() < 0.05
+    assert given.sum() > 0.95 * lit.sum()
+
+
+def test_a_camera_with_lens_distortion_decodes_through_its_ideal_pixels():
+    """The decoder's maps follow the calibration's ideal (undistorted) pixels, full maps with a lens."""
+    lens_rig = Rig(distortion=(-0.9, 0.0, 2e-4, -2e-4, 0.0))
+    calibration = simulated_calibration(lens_rig, lens_rig.pattern_set(), seed=7)[0]
+    scene = make_scene(lens_rig, "objects", 21)
+    renderer = SceneRenderer(lens_rig, scene)
+    lit = renderer.lit[renderer.crop]
+    depth, _ = CompositeDecoder(calibration)(
+        as_network_output(*exact_phases(renderer, lens_rig.pattern_set())), 0.5, lit
+    )
+    given = np.isfinite(depth)
+    assert np.abs(depth - scene.depth_mm)[given].max() < 0.05 and given.sum() > 0.95 * lit.sum()
+
+
 def test_a_surface_outside_the_working_range_is_nan_not_the_nearest_order_inside(rig, patterns, calibration):
     """Planes 10 and 40 mm before the working range and 10 and 80 mm beyond it: their codes name
     orders outside the range, or miss every order inside by more than the decisions' margin, so every
     pixel is NaN, not the nearest order inside (an order or more off). A plane tilted across the
     range's near end keeps the exact depth inside the range and says NaN beyond it."""
-    decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+    decoder = CompositeDecoder(calibration)
     for z in (SURFACE_DEPTH_MM[0] - 40, SURFACE_DEPTH_MM[0] - 10, SURFACE_DEPTH_MM[1] + 10, SURFACE_DEPTH_MM[1] + 80):
         renderer = SceneRenderer(rig, plane_scene(rig, z))
         depth, confidence = decoder(as_network_output(*exact_phases(renderer, patterns)), 0.5)
@@ -99,7 +129,7 @@ def test_a_surface_outvotes_scattered_order_errors_and_a_code_of_noise_is_nan(ri
     """A fifth of the pixels' codes point at a wrong order (1-5 orders off): the neighbourhood outvotes
     every one (NaN) and keeps the rest. A code that carries nothing (uniform noise) gets no vote: NaN,
     never a guess."""
-    decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+    decoder = CompositeDecoder(calibration)
     renderer = SceneRenderer(rig, plane_scene(rig, 1150.0))
     carrier, codes = exact_phases(renderer, patterns)
     rng = np.random.default_rng(0)
@@ -123,9 +153,9 @@ def test_a_coherent_patch_of_wrong_orders_is_its_own_surface_and_too_small_to_tr
     patch = np.zeros(carrier.shape, bool)
     patch[200:240, 300:340] = True
     biased = as_network_output(carrier, orders_off(codes, patch))
-    depth, _ = CompositeDecoder(calibration, SURFACE_DEPTH_MM)(biased, 0.5)
+    depth, _ = CompositeDecoder(calibration)(biased, 0.5)
     assert np.mean(np.abs(depth[patch] - 1150.0) > 5) > 0.5  # the window's vote alone: an order off
-    depth, confidence = CompositeDecoder(calibration, SURFACE_DEPTH_MM, min_surface_px=2000)(biased, 0.5)
+    depth, confidence = CompositeDecoder(calibration, min_surface_px=2000)(biased, 0.5)
     assert not np.isfinite(depth[patch]).any() and np.mean(confidence[patch] == 0) > 0.9
     assert np.isfinite(depth[~patch]).mean() > 0.99 and np.nanmax(np.abs(depth - 1150.0)) < 0.05
 
@@ -149,13 +179,15 @@ def test_the_codes_tell_every_two_orders_of_the_working_range_apart(calibration)
     """The design (patterns.COMPOSITE_CODES): on the default rig the codes of any two orders in
     1000-1350 mm stay at least 0.85 rad apart (root sum of squares over the codes; measured 0.93), and
     each row phase's drift over the decoder's window is a straight line within 3e-3 rad (measured 1.4e-3)."""
-    decoder = CompositeDecoder(calibration, SURFACE_DEPTH_MM)
+    decoder = CompositeDecoder(calibration)
     assert decoder.min_separation > 0.85 and decoder.row_fit_error < 3e-3
 
 
-def test_a_working_range_wider_than_the_code_is_refused(calibration):
+def test_a_working_range_wider_than_the_code_or_none_is_a_clear_error(calibration):
     with pytest.raises(PhaseError, match="fringe orders"):
-        CompositeDecoder(calibration, (900.0, 1500.0))
+        CompositeDecoder(replace(calibration, working_range_mm=(900.0, 1500.0)))
+    with pytest.raises(PhaseError, match="no working range"):  # a file from before the working range
+        CompositeDecoder(replace(calibration, working_range_mm=None))
     paper = Calibration(
         calibration.camera,
         calibration.model,
@@ -163,7 +195,7 @@ def test_a_working_range_wider_than_the_code_is_refused(calibration):
         calibration.reference_depth_mm,
     )
     with pytest.raises(PhaseError, match="code models"):
-        CompositeDecoder(paper, SURFACE_DEPTH_MM)
+        CompositeDecoder(paper)
 
 
 def test_a_calibration_has_code_models_exactly_with_the_composite(calibration):
