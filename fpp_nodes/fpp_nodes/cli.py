@@ -217,8 +217,7 @@ def _reconstruct(
     if method == "cnn":  # what cnn_depth does, offline
         from .core.model import DepthModel, default_model_path
 
-        model = DepthModel(model_path or default_model_path())
-        model.check_patterns(calibration.patterns)
+        model = DepthModel(model_path or default_model_path(), calibration=calibration)  # depth from this rig
         depth, confidence = model.infer(images[index])
         quality = confidence if confidence is not None else np.isfinite(depth).astype(np.float32)
         return Reconstruction(

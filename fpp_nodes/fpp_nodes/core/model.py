@@ -16,6 +16,7 @@ import yaml
 
 from .calibration import Calibration
 from .patterns import CARRIER_AMPLITUDE, COMPOSITE_CODES, PatternError, PatternSet
+from .phase import PhaseError
 from .reconstruct import CompositeDecoder, QualityLimits, depth_terms, drop_flying_pixels, full_scale
 
 STRIDE = 32
@@ -43,7 +44,13 @@ def paper_model_path() -> str:
 
 
 class DepthModel:
-    def __init__(self, path, providers=("CPUExecutionProvider",), threads: int = 2):
+    """An exported single-shot model and its card. A composite model's network reads the pattern's
+    phases off the image, which no rig's geometry enters; the rig's calibration (calibration, by
+    default the card's: the training rig's) turns them into depth, so it runs on any rig that shows
+    its pattern with the camera size it was trained for. The paper-pattern phase network's order is
+    relative to its training rig's reference depth, so it decodes with its card's calibration only."""
+
+    def __init__(self, path, providers=("CPUExecutionProvider",), threads: int = 2, calibration=None):
         import onnxruntime as ort
 
         path = Path(path)
@@ -84,24 +91,42 @@ class DepthModel:
         # an output at 1/r of the input's resolution with r^2 times the channels, shuffled here (export)
         self.shuffle = int((self.card.get("output") or {}).get("pixel_shuffle", 1))
         self.decoder = None
+        if calibration is not None:  # the rig it runs on: the frame it shows, the camera's size
+            if self.reads != calibration.patterns.single_shot:
+                raise ModelError(
+                    f"the model reads the {self.reads!r} single-shot frame but the calibration's pattern set "
+                    f"has {calibration.patterns.single_shot!r} (set its patterns' single_shot, or use a model "
+                    "trained for it)"
+                )
+            cam = calibration.camera
+            if (cam.width, cam.height) != self.size:
+                raise ModelError(
+                    f"the model was trained for {self.size[0]}x{self.size[1]} images, "
+                    f"the calibration's camera is {cam.width}x{cam.height}"
+                )
         if self.output in ("fringe_order", "fringe_phases"):  # a phase-aware model: its card holds its calibration
             try:
-                calibration = Calibration.from_dict(self.card["calibration"])
+                card_calibration = Calibration.from_dict(self.card["calibration"])
                 self.min_confidence = float(self.card["decoding"]["min_confidence"])
                 # the fringe mask's floor and the roughness rule, chosen with the threshold on validation
                 # (cards before them: 5%, no roughness rule)
                 self.min_modulation = float(self.card["decoding"].get("min_modulation", MIN_MODULATION))
                 self.max_roughness_mm = float(self.card["decoding"].get("max_roughness_mm", np.inf))
-                self.decoder = (
-                    PhaseOrderDecoder(calibration)
-                    if self.output == "fringe_order"
-                    else CompositeDecoder(calibration, int(self.card["decoding"].get("min_surface_px", 0)))
-                )
-            except (KeyError, TypeError, ValueError) as e:  # CalibrationError and PhaseError are ValueErrors
+                min_surface_px = int(self.card["decoding"].get("min_surface_px", 0))
+            except (KeyError, TypeError, ValueError) as e:  # CalibrationError is a ValueError
                 raise ModelError(
                     f"model card {card_path} lacks the calibration or decoding of a phase-aware "
                     f"model ({type(e).__name__}: {e})"
                 ) from None
+            try:
+                self.decoder = (
+                    PhaseOrderDecoder(card_calibration)
+                    if self.output == "fringe_order"
+                    else CompositeDecoder(calibration or card_calibration, min_surface_px)
+                )
+            except PhaseError as e:
+                whose = "its card's" if calibration is None or self.output == "fringe_order" else "the rig's"
+                raise ModelError(f"model {path} cannot decode with {whose} calibration: {e}") from None
             if self.downsample != 1:
                 raise ModelError(f"model card {card_path}: a phase-aware model runs at full resolution")
             channels = self.session.get_outputs()[0].shape[1] // self.shuffle**2
@@ -111,15 +136,6 @@ class DepthModel:
                     f"model {path} gives {channels} channels: it was trained for another composite pattern "
                     f"(this one's carrier and {len(COMPOSITE_CODES)} code gratings give {expected})"
                 )
-
-    def check_patterns(self, patterns: PatternSet) -> None:
-        """A model reads one kind of single-shot frame (its card's pattern set): say so if the rig shows
-        another."""
-        if self.reads != patterns.single_shot:
-            raise ModelError(
-                f"the model reads the {self.reads!r} single-shot frame but the calibration's pattern set "
-                f"has {patterns.single_shot!r} (set its patterns' single_shot, or use a model trained for it)"
-            )
 
     def check(self, image: np.ndarray) -> None:
         if image.ndim != 2 or (image.shape[1], image.shape[0]) != self.size:

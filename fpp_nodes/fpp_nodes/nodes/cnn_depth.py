@@ -15,7 +15,8 @@ the threshold its card holds, chosen on validation data). A frame of the wrong s
 rejected and counted; a missing, corrupt or mismatched model stops the node at start. Parameters:
 model (path; empty = the shipped default), providers (CPUExecutionProvider; CUDA where present),
 threads (onnxruntime intra-op threads), min_confidence (negative: the model card's), calibration
-(intrinsics for the cloud).
+(the rig's: a composite model's phases become depth through it, whatever rig trained the network;
+intrinsics for the cloud).
 
 Two frames are in hand at once: the network runs on a frame in the subscription's callback while a
 thread of the node's own decodes the frame before and publishes it, so on 2 cores the network takes
@@ -67,16 +68,10 @@ class CnnDepth(Node):
         self.calibration, source = load_calibration(self)
         self.health.facts["calibration"] = describe(self.calibration, source)
         path = path or default_model_path()
-        self.model = DepthModel(path, providers, threads)
+        self.model = DepthModel(path, providers, threads, self.calibration)
         if min_confidence >= 0 and self.model.decoder is not None:
             self.model.min_confidence = min_confidence
-        self.model.check_patterns(self.calibration.patterns)
         cam = self.calibration.camera
-        if (cam.width, cam.height) != self.model.size:
-            raise ModelError(
-                f"the model was trained for {self.model.size[0]}x{self.model.size[1]} images, "
-                f"the calibration's camera is {cam.width}x{cam.height}"
-            )
         self.info = camera_info(**cam.to_dict())
         # the decoder's compiled pass (or numba's cached copy) and onnxruntime's first run now, not on a frame
         self.model.infer(np.zeros((cam.height, cam.width), np.uint8))
