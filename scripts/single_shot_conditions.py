@@ -1,10 +1,15 @@
 """The shipped single-shot model (or --model) on a rig whose photometry leaves the ranges it was trained
 on (training's `random_rig`: ambient 0-15% of full scale, gain 0.4-1.0, noise 0.5-3 counts, blur 0.3-1.2
-px; the projector's gamma as the patterns assume): does it say NaN, or guess?
+px; the projector's gamma as the patterns assume), and on rigs of another geometry: does it say NaN, or
+guess?
 
-Renders the same scenes (the demo's sculpture and fresh seeds of three training families, none in any
-data set) under each condition with the default rig's geometry and prints the coverage of the lit
-pixels and the share of the output off the exact depth by more than 1 and 4 mm.
+Photometry: renders the same scenes (the demo's sculpture and fresh seeds of three training families,
+none in any data set) under each condition with the default rig's geometry. Geometry: each rig is
+calibrated from simulated noisy planes 60 mm either side of its stand-off (its working range) and
+measures the sculpture and separated objects (fresh seeds) through that calibration, as cnn_depth does
+with the rig's calibration; beside it, the same decoded with the model card's calibration (the training
+rig's, what cnn_depth used before). Prints the coverage of the lit pixels and the share of the output
+off the exact depth by more than 1 and 4 mm.
 
     python scripts/single_shot_conditions.py
 """
@@ -20,6 +25,7 @@ from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import DepthModel, default_model_path
 from fpp_nodes.core.scenes import make_scene
 from fpp_nodes.core.simulation import Rig, render
+from fpp_nodes.core.workflow import simulated_calibration
 
 CONDITIONS = {
     "inside the training ranges (default rig)": {},
@@ -34,6 +40,29 @@ CONDITIONS = {
     "gain 1.3 (bright surfaces clip)": dict(gain=1.3),
 }
 SCENES = [(family, seed) for family in ("sculpture", "freeform", "blocks", "bust") for seed in (7001, 7002)]
+GEOMETRIES = {
+    "the default rig": {},
+    "stand-off 600 mm, the same field of view": dict(standoff_mm=600.0, focal_px=Rig.focal_px / 2),
+    "stand-off 1800 mm, the same field of view": dict(standoff_mm=1800.0, focal_px=Rig.focal_px * 1.5),
+    "baseline 300 mm": dict(baseline_mm=300.0),
+    "baseline 120 mm": dict(baseline_mm=120.0),
+    "projector field 300 mm (fringes 1.36x wider)": dict(projector_field_mm=300.0),
+    "camera field 124 mm (fringes 1.25x wider)": dict(focal_px=Rig.focal_px * 1.25),
+}
+# the families place surfaces by the simulated rig's depths; these two follow any rig's stand-off
+GEOMETRY_SCENES = [(kind, seed) for kind in ("sculpture", "objects") for seed in (7001, 7002)]
+
+
+def measure(model, rig, patterns, scenes) -> tuple[ErrorTotals, ErrorTotals]:
+    """The model's output on scenes rendered by rig showing patterns: totals at 1 mm and at 4 mm."""
+    within, beyond = ErrorTotals(), ErrorTotals()
+    for kind, seed in scenes:
+        capture = render(rig, make_scene(rig, kind, seed), patterns, np.random.default_rng(seed))
+        truth = np.where(capture.valid, capture.depth_mm, np.nan)
+        depth = model(capture.images[patterns.single_shot_index])
+        within.add(depth, truth, 1.0)
+        beyond.add(depth, truth, 4.0)
+    return within, beyond
 
 
 def main(argv=None):
@@ -44,17 +73,22 @@ def main(argv=None):
     patterns = base.pattern_set()  # pre-compensated for the default gamma, whatever the projector's is
     model = DepthModel(args.model)
     print(f"{len(SCENES)} scenes (the sculpture and fresh seeds of freeform, blocks, bust), {args.model}")
-    print(f"{'condition':40} {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
+    print(f"{'photometry':46} {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
     for name, changes in CONDITIONS.items():
+        within, beyond = measure(model, replace(base, **changes), patterns, SCENES)
+        print(f"{name:46} {within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
+    print(f"\n{len(GEOMETRY_SCENES)} scenes (fresh seeds of the sculpture and of separated objects)")
+    print(f"{'':46} {'the rig calibration':>21}   {'the card calibration':>21}")
+    print(f"{'geometry':46} {'cover':>6} {'>1mm':>6} {'>4mm':>7}   {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
+    for name, changes in GEOMETRIES.items():
         rig = replace(base, **changes)
-        within, beyond = ErrorTotals(), ErrorTotals()
-        for family, seed in SCENES:
-            capture = render(rig, make_scene(rig, family, seed), patterns, np.random.default_rng(seed))
-            truth = np.where(capture.valid, capture.depth_mm, np.nan)
-            depth = model(capture.images[patterns.single_shot_index])
-            within.add(depth, truth, 1.0)
-            beyond.add(depth, truth, 4.0)
-        print(f"{name:40} {within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
+        planes = [rig.standoff_mm + dz for dz in (-60.0, -30.0, 0.0, 30.0, 60.0)]
+        calibration, _ = simulated_calibration(rig, patterns, 1, planes, working_range_mm=None)
+        cells = []
+        for decoding in (DepthModel(args.model, calibration=calibration), model):
+            within, beyond = measure(decoding, rig, patterns, GEOMETRY_SCENES)
+            cells.append(f"{within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
+        print(f"{name:46} {cells[0]}   {cells[1]}")
     print("cover: share of lit pixels given a depth; >1mm, >4mm: share of those off the exact depth by more")
 
 

@@ -90,8 +90,38 @@ class DepthModel:
         self.output = self.session.get_outputs()[0].name
         # an output at 1/r of the input's resolution with r^2 times the channels, shuffled here (export)
         self.shuffle = int((self.card.get("output") or {}).get("pixel_shuffle", 1))
-        self.decoder = None
-        if calibration is not None:  # the rig it runs on: the frame it shows, the camera's size
+        self.decoder = self.card_calibration = self.calibration = None
+        if self.output in ("fringe_order", "fringe_phases"):  # a phase-aware model: its card holds its calibration
+            try:
+                self.card_calibration = Calibration.from_dict(self.card["calibration"])
+                self.min_confidence = float(self.card["decoding"]["min_confidence"])
+                # the fringe mask's floor and the roughness rule, chosen with the threshold on validation
+                # (cards before them: 5%, no roughness rule)
+                self.min_modulation = float(self.card["decoding"].get("min_modulation", MIN_MODULATION))
+                self.max_roughness_mm = float(self.card["decoding"].get("max_roughness_mm", np.inf))
+                self.min_surface_px = int(self.card["decoding"].get("min_surface_px", 0))
+            except (KeyError, TypeError, ValueError) as e:  # CalibrationError is a ValueError
+                raise ModelError(
+                    f"model card {card_path} lacks the calibration or decoding of a phase-aware "
+                    f"model ({type(e).__name__}: {e})"
+                ) from None
+            if self.downsample != 1:
+                raise ModelError(f"model card {card_path}: a phase-aware model runs at full resolution")
+            channels = self.session.get_outputs()[0].shape[1] // self.shuffle**2
+            expected = 2 + 2 * len(COMPOSITE_CODES)
+            if self.output == "fringe_phases" and channels != expected:
+                raise ModelError(
+                    f"model {path} gives {channels} channels: it was trained for another composite pattern "
+                    f"(this one's carrier and {len(COMPOSITE_CODES)} code gratings give {expected})"
+                )
+        self.use(calibration)
+
+    def use(self, calibration: Calibration | None) -> None:
+        """Run on the rig of this calibration (None: the card's): it must show the model's single-shot
+        frame at the camera size the model was trained for. Nothing changes if it cannot be used."""
+        if calibration is not None and calibration is self.calibration:
+            return  # the decoder's maps take seconds to build
+        if calibration is not None:
             if self.reads != calibration.patterns.single_shot:
                 raise ModelError(
                     f"the model reads the {self.reads!r} single-shot frame but the calibration's pattern set "
@@ -104,38 +134,17 @@ class DepthModel:
                     f"the model was trained for {self.size[0]}x{self.size[1]} images, "
                     f"the calibration's camera is {cam.width}x{cam.height}"
                 )
-        if self.output in ("fringe_order", "fringe_phases"):  # a phase-aware model: its card holds its calibration
-            try:
-                card_calibration = Calibration.from_dict(self.card["calibration"])
-                self.min_confidence = float(self.card["decoding"]["min_confidence"])
-                # the fringe mask's floor and the roughness rule, chosen with the threshold on validation
-                # (cards before them: 5%, no roughness rule)
-                self.min_modulation = float(self.card["decoding"].get("min_modulation", MIN_MODULATION))
-                self.max_roughness_mm = float(self.card["decoding"].get("max_roughness_mm", np.inf))
-                min_surface_px = int(self.card["decoding"].get("min_surface_px", 0))
-            except (KeyError, TypeError, ValueError) as e:  # CalibrationError is a ValueError
-                raise ModelError(
-                    f"model card {card_path} lacks the calibration or decoding of a phase-aware "
-                    f"model ({type(e).__name__}: {e})"
-                ) from None
+        if self.card_calibration is not None:  # a depth-regressing model has the rig's geometry in the network
             try:
                 self.decoder = (
-                    PhaseOrderDecoder(card_calibration)
+                    PhaseOrderDecoder(self.card_calibration)
                     if self.output == "fringe_order"
-                    else CompositeDecoder(calibration or card_calibration, min_surface_px)
+                    else CompositeDecoder(calibration or self.card_calibration, self.min_surface_px)
                 )
             except PhaseError as e:
                 whose = "its card's" if calibration is None or self.output == "fringe_order" else "the rig's"
-                raise ModelError(f"model {path} cannot decode with {whose} calibration: {e}") from None
-            if self.downsample != 1:
-                raise ModelError(f"model card {card_path}: a phase-aware model runs at full resolution")
-            channels = self.session.get_outputs()[0].shape[1] // self.shuffle**2
-            expected = 2 + 2 * len(COMPOSITE_CODES)
-            if self.output == "fringe_phases" and channels != expected:
-                raise ModelError(
-                    f"model {path} gives {channels} channels: it was trained for another composite pattern "
-                    f"(this one's carrier and {len(COMPOSITE_CODES)} code gratings give {expected})"
-                )
+                raise ModelError(f"the model cannot decode with {whose} calibration: {e}") from None
+        self.calibration = calibration
 
     def check(self, image: np.ndarray) -> None:
         if image.ndim != 2 or (image.shape[1], image.shape[0]) != self.size:

@@ -38,7 +38,7 @@ from fpp_msgs_py import ImageError, Qos, Topics, camera_info, image_to_numpy, nu
 
 from ..core.calibration import back_project
 from ..core.model import DepthModel, ModelError, default_model_path
-from .common import declare, describe, load_calibration, run
+from .common import declare, describe, follow_calibration, load_calibration, run
 from .health import Health
 
 NEWEST_ONLY = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
@@ -65,14 +65,17 @@ class CnnDepth(Node):
         if min_confidence > 1.0:
             raise ValueError(f"min_confidence must be <= 1 (negative: the model card's), got {min_confidence}")
         self.health = Health(self)
-        self.calibration, source = load_calibration(self)
-        self.health.facts["calibration"] = describe(self.calibration, source)
+        calibration, source = load_calibration(self)
         path = path or default_model_path()
-        self.model = DepthModel(path, providers, threads, self.calibration)
+        self.model = DepthModel(path, providers, threads, calibration)
         if min_confidence >= 0 and self.model.decoder is not None:
             self.model.min_confidence = min_confidence
+        # the network's outputs to the decoding thread, once it is done with the frame before: meanwhile
+        # the next frame waits in the subscription, which keeps only the newest
+        self.decoding = queue.Queue()
+        self._use(calibration, source)
+        follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
         cam = self.calibration.camera
-        self.info = camera_info(**cam.to_dict())
         # the decoder's compiled pass (or numba's cached copy) and onnxruntime's first run now, not on a frame
         self.model.infer(np.zeros((cam.height, cam.width), np.uint8))
         self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
@@ -90,11 +93,16 @@ class CnnDepth(Node):
             }
         )
         self.get_logger().info(f"model {path} ({card.get('architecture')}), providers {self.model.providers}")
-        # the network's outputs to the decoding thread, once it is done with the frame before: meanwhile
-        # the next frame waits in the subscription, which keeps only the newest
-        self.decoding = queue.Queue()
         self.decoder_thread = threading.Thread(target=self._decode_frames, name="cnn_depth decoding", daemon=True)
         self.decoder_thread.start()
+
+    def _use(self, calibration, source):
+        """The rig's calibration (a replayed bag's, from fpp/calibration): a composite model's depth and
+        every cloud from the next frame on; the frame in hand is published with the one before."""
+        self.decoding.join()  # one executor thread: no frame is queued until this returns
+        self.model.use(calibration)
+        self.calibration, self.info = calibration, camera_info(**calibration.camera.to_dict())
+        self.health.facts["calibration"] = describe(calibration, source)
 
     def _on_image(self, msg: Image):
         self.health.count("frames in")

@@ -14,7 +14,7 @@ from std_msgs.msg import String
 
 from fpp_msgs_py import Qos, Topics
 
-from ..core.calibration import Calibration, CalibrationError, default_calibration_path
+from ..core.calibration import Calibration, default_calibration_path
 
 MESSAGE_TYPES = {
     "sensor_msgs/msg/Image": Image,
@@ -57,17 +57,19 @@ def describe(calibration: Calibration, source: str) -> str:
 
 def follow_calibration(node: Node, current, use) -> None:
     """Switch to a calibration published on fpp/calibration (a replayed bag's): use(calibration) is
-    called when one arrives that differs from current(); a bad one is an error and changes nothing."""
+    called when one arrives that differs from current(); a bad one (unreadable, or one use() refuses
+    with a ValueError) is an error and changes nothing."""
 
     def callback(msg: String):
         try:
             calibration = Calibration.from_yaml(msg.data)
-        except CalibrationError as e:
+            if calibration.to_dict() == current().to_dict():
+                return
+            use(calibration)
+        except ValueError as e:  # CalibrationError, ModelError
             node.get_logger().error(f"calibration on {Topics.CALIBRATION} ignored: {e}")
             return
-        if calibration.to_dict() != current().to_dict():
-            use(calibration)
-            node.get_logger().info(f"using the calibration from {Topics.CALIBRATION}")
+        node.get_logger().info(f"using the calibration from {Topics.CALIBRATION}")
 
     node.create_subscription(String, Topics.CALIBRATION, callback, Qos.LATCHED)
 

@@ -225,6 +225,35 @@ def test_cnn_depth_decodes_one_frame_while_the_next_runs_through_the_network(ros
     assert not node.decoder_thread.is_alive()
 
 
+def test_cnn_depth_measures_with_a_replayed_rigs_calibration(ros_graph, near_rig, near_calibration):
+    """A bag's calibration on fpp/calibration (as replay publishes it), here of a rig at 600 mm:
+    cnn_depth decodes the shipped network's phases with it, so that rig's frames come back at their own
+    depth (with the simulated rig's calibration they would be about 600 mm off), and its camera_info
+    is that rig's."""
+    from std_msgs.msg import String
+
+    from fpp_nodes.nodes.cnn_depth import CnnDepth
+
+    _, robot = ros_graph
+    node = CnnDepth(context=robot.context)
+    robot.executor.add_node(node)
+    calibration_pub = robot.node.create_publisher(String, Topics.CALIBRATION, Qos.LATCHED)
+    calibration_pub.publish(String(data=near_calibration.to_yaml()))
+    assert robot.spin_until(lambda: node.calibration.to_dict() == near_calibration.to_dict(), 120)
+    patterns = near_calibration.patterns
+    capture = render(near_rig, make_scene(near_rig, "objects", 21), patterns, np.random.default_rng(21))
+    camera_pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
+    depths, infos = collect(robot, Topics.DEPTH, Image), collect(robot, Topics.DEPTH_INFO, CameraInfo, Qos.INFO)
+    assert robot.spin_until(lambda: camera_pub.get_subscription_count() and node.depth_pub.get_subscription_count(), 30)
+    camera_pub.publish(numpy_to_image(capture.images[patterns.single_shot_index], header_at(1, Frames.CAMERA)))
+    assert robot.spin_until(lambda: depths and infos, 60)
+    error = image_to_numpy(depths[0]) * 1000.0 - capture.depth_mm
+    assert np.isfinite(error).sum() > 0.9 * capture.valid.sum() and np.nanmedian(np.abs(error)) < 0.1
+    assert infos[0].k[0] == pytest.approx(near_calibration.camera.fx)
+    robot.executor.remove_node(node)
+    node.destroy_node()
+
+
 def test_main_job_writes_clouds_and_reports(tmp_path):
     """`ros2 run fpp_nodes demo` (what `make demo` runs) on its own domain."""
     import subprocess
