@@ -50,6 +50,28 @@ def _uv_terms(u, v):
 
 
 @dataclass
+class PixelModel:
+    """The rational model at given pixels: z = (ca + cb phi) / (da + db phi), the phase-free terms
+    computed once (RationalModel.at), for the many phases or depths asked of the same pixels."""
+
+    ca: np.ndarray
+    cb: np.ndarray
+    da: np.ndarray
+    db: np.ndarray
+
+    def depth(self, phase):
+        return (self.ca + self.cb * phase) / (self.da + self.db * phase)
+
+    def phase_at_depth(self, depth):
+        """The inverse: the unwrapped phase a pixel sees at a given depth."""
+        return (self.ca - depth * self.da) / (depth * self.db - self.cb)
+
+    def depth_per_radian(self, phase):
+        """dz/dphi: how far a phase error moves the depth."""
+        return (self.cb * self.da - self.ca * self.db) / (self.da + self.db * phase) ** 2
+
+
+@dataclass
 class RationalModel:
     c: np.ndarray  # 12 numerator coefficients, c[0] == 1
     d: np.ndarray  # 12 denominator coefficients
@@ -73,19 +95,19 @@ class RationalModel:
         db = sum(self.d[2 * k + 1] * t[k] for k in range(6))
         return ca, cb, da, db
 
+    def at(self, u, v) -> PixelModel:
+        return PixelModel(*self.linear_in_phase(u, v))
+
     def depth(self, phase, u, v):
-        ca, cb, da, db = self.linear_in_phase(u, v)
-        return (ca + cb * phase) / (da + db * phase)
+        return self.at(u, v).depth(phase)
 
     def phase_at_depth(self, depth, u, v):
         """The inverse: the unwrapped phase a pixel sees at a given depth."""
-        ca, cb, da, db = self.linear_in_phase(u, v)
-        return (ca - depth * da) / (depth * db - cb)
+        return self.at(u, v).phase_at_depth(depth)
 
     def depth_per_radian(self, phase, u, v):
         """dz/dphi: how far a phase error moves the depth."""
-        ca, cb, da, db = self.linear_in_phase(u, v)
-        return (cb * da - ca * db) / (da + db * phase) ** 2
+        return self.at(u, v).depth_per_radian(phase)
 
 
 def design_matrix(u, v, phase, depth):
@@ -285,7 +307,12 @@ class Calibration:
 
     def code_row_phase_at_depth(self, code: int, depth, u, v):
         """Code grating number code's row phase a pixel sees at a depth (composite calibrations only)."""
-        return self.code_models[code].phase_at_depth(depth, u, v) - self.model.phase_at_depth(depth, u, v)
+        return self.code_row_phases(u, v)(code, depth)
+
+    def code_row_phases(self, u, v):
+        """code_row_phase_at_depth at fixed pixels, the models' terms computed once: f(code, depth)."""
+        carrier, codes = self.model.at(u, v), [m.at(u, v) for m in self.code_models]
+        return lambda code, depth: codes[code].phase_at_depth(depth) - carrier.phase_at_depth(depth)
 
     def to_dict(self) -> dict:
         return {

@@ -266,8 +266,9 @@ class CompositeDecoder:
         t = np.arange(orders + 1) - orders / 2
         self.code_order = sorted(range(len(COMPOSITE_CODES)), key=lambda i: -COMPOSITE_CODES[i][0])  # coarse first
         terms, self.row_fit_error = [], 0.0  # per code in code_order: (intercept, rate, spacing)
+        row = self._rows(calibration, u, v)
         for i in self.code_order:
-            rows = [self._row(calibration, i, middle + TWO_PI * k, u, v) for k in t]
+            rows = [row(i, middle + TWO_PI * k) for k in t]
             slope = sum(k * r for k, r in zip(t, rows)) / (np.sum(t * t) * TWO_PI)
             intercept = sum(rows) / len(rows) - slope * middle
             self.row_fit_error = max(
@@ -298,8 +299,10 @@ class CompositeDecoder:
         return cv2.addWeighted(steps, self.median_step, steps, 0, self.median_base, dtype=cv2.CV_32F)
 
     @staticmethod
-    def _row(calibration: Calibration, code: int, phase, u, v):
-        return calibration.code_row_phase_at_depth(code, calibration.model.depth(phase, u, v), u, v)
+    def _rows(calibration: Calibration, u, v):
+        """Each code's row phase at a carrier phase, at pixels (u, v): f(code, carrier phase)."""
+        carrier, rows = calibration.model.at(u, v), calibration.code_row_phases(u, v)
+        return lambda code, phase: rows(code, carrier.depth(phase))
 
     def _separation(self, calibration: Calibration, ends, u, v, step: int = 8) -> float:
         """How close the codes of two orders in the working range come, over every step-th pixel (rad,
@@ -307,12 +310,10 @@ class CompositeDecoder:
         u, v = (np.broadcast_to(a, ends[0].shape)[::step, ::step] for a in (u, v))  # a lens: full maps
         lo = np.minimum(ends[0], ends[1])[::step, ::step]
         hi = np.maximum(ends[0], ends[1])[::step, ::step]
-        codes, inside = [], []
+        codes, inside, row = [], [], self._rows(calibration, u, v)
         for k in range(int(np.ceil((hi - lo).max() / TWO_PI)) + 1):
             phase = lo + TWO_PI * k
-            codes.append(
-                [self._row(calibration, i, phase, u, v) + phase / n for i, (n, _) in enumerate(COMPOSITE_CODES)]
-            )
+            codes.append([row(i, phase) + phase / n for i, (n, _) in enumerate(COMPOSITE_CODES)])
             inside.append(phase <= hi)
         closest = np.inf
         for a in range(len(codes)):
