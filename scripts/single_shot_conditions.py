@@ -48,6 +48,7 @@ GEOMETRIES = {
     "baseline 120 mm": dict(baseline_mm=120.0),
     "projector field 300 mm (fringes 1.36x wider)": dict(projector_field_mm=300.0),
     "camera field 124 mm (fringes 1.25x wider)": dict(focal_px=Rig.focal_px * 1.25),
+    "a lens: k1 -0.9 (2.3 px of barrel distortion)": dict(distortion=(-0.9, 0.0, 2e-4, -2e-4, 0.0)),
 }
 # the families place surfaces by the simulated rig's depths; these two follow any rig's stand-off
 GEOMETRY_SCENES = [(kind, seed) for kind in ("sculpture", "objects") for seed in (7001, 7002)]

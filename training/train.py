@@ -17,7 +17,7 @@ import csv
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import cv2
@@ -54,7 +54,9 @@ class TrainConfig:
     lr: float = 1e-3
     weight_decay: float = 1e-4
     dropout: float = 0.1
-    depth_offset_mm: float = 1200.0  # depth-regressing networks: output o -> offset + scale * o, mm
+    depth_offset_mm: float = (
+        0.0  # depth-regressing networks: o -> offset + scale * o, mm (0: the rig's reference depth)
+    )
     depth_scale_mm: float = 50.0
     patience: int = 20
     loss: str = "mse"
@@ -383,11 +385,11 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     counts = {"train": len(train_files), "val": len(val_files)}
     if not train_files or not val_files:
         raise ValueError(f"{config.data} has no train or val samples (make them with python -m training.dataset)")
+    calibration = Calibration.from_dict(yaml.safe_load((Path(config.data) / "dataset.yaml").read_text())["calibration"])
+    if not config.depth_offset_mm:  # the set's rig, not the simulated one: a network starts near its depths
+        config = replace(config, depth_offset_mm=calibration.reference_depth_mm)
     phase_aware = config.arch in ("phase", "composite")
     if phase_aware:
-        calibration = Calibration.from_dict(
-            yaml.safe_load((Path(config.data) / "dataset.yaml").read_text())["calibration"]
-        )
         if config.arch == "composite":
             decoder = CompositeDecoder(calibration)
             train_set = CompositeSet(train_files, config.augment, config.crop, config.seed + rank)

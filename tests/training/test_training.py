@@ -299,6 +299,8 @@ def test_the_phase_aware_network_trains_exports_and_runs(tmp_path):
     fringe, phase, family = load_phase_targets(split_files(data, "train")[0])
     assert fringe.shape == (2, 480, 640) and np.isfinite(phase).mean() > 0.3 and family == "bust"
     train(TrainConfig(data=str(data), out=str(tmp_path / "run"), arch="phase", width=4, downsample=1, epochs=1))
+    # depth-regressing heads start at the set's rig: its calibration's reference depth unless given
+    assert load_checkpoint(tmp_path / "run" / "last.pt")["config"]["depth_offset_mm"] == 1200.0
     card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m.onnx"))
     assert card["output"]["name"] == "fringe_order" and "val" in card["decoding"]["chosen_on"]
     assert card["calibration"]["camera"]["width"] == 640
