@@ -70,6 +70,12 @@ def load_sample(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return z["input"], z["label"], z["truth"]
 
 
+def reference_depth(label: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """What a sample's output is judged against: its exact depth (a simulated scene), or where it has
+    none (a recorded scene: truth all NaN) its multi-shot label."""
+    return truth if np.isfinite(truth).any() else label
+
+
 def sample_family(path, default: str = "?") -> str:
     """The scene family a sample was drawn from (sets without families: default)."""
     with np.load(path, allow_pickle=False) as z:

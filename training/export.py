@@ -40,7 +40,7 @@ from fpp_nodes.core.model import (
 from fpp_nodes.core.patterns import PatternSet
 from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits
 
-from .dataset import load_sample, sample_family, split_files
+from .dataset import load_sample, reference_depth, sample_family, split_files
 from .train import load_checkpoint, model_from_checkpoint, predict
 
 PARITY_TOLERANCE_MM = 1e-3
@@ -127,9 +127,9 @@ def choose_decoding(model, data: str, decoder, limit: int = 200) -> dict:
 
     def samples():
         for f in files:
-            image, _, truth = load_sample(f)
+            image, label, truth = load_sample(f)
             out = predict(model, torch.from_numpy(network_input(image))[None, None])[0].numpy()
-            yield image, truth, out, sample_family(f)
+            yield image, reference_depth(label, truth), out, sample_family(f)
 
     composite = hasattr(decoder, "min_surface_px")
     surfaces, roughness = (SURFACE_GRID, ROUGHNESS_GRID) if composite else ((0,), (np.inf,))

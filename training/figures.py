@@ -37,15 +37,16 @@ MARK_BGR = (0, 0, 230)  # the profile's line on the input image
 NAMES = {"fcn": "FCN", "aen": "AEN", "unet": "UNet", "phase": "phase-aware"}  # as the paper writes them
 
 
-def load_models(paths) -> list[tuple[str, object]]:
+def load_models(paths, calibration=None) -> list[tuple[str, object]]:
     """(name, image -> depth mm) of each checkpoint (.pt, run with torch as training.evaluate does)
-    or ONNX model (.onnx with its card, run with onnxruntime as cnn_depth does)."""
+    or ONNX model (.onnx with its card, run with onnxruntime as cnn_depth does, with the calibration of
+    the rig that took the images: None, its card's)."""
     models = []
     for path in map(Path, paths):
         if path.suffix == ".onnx":
             from fpp_nodes.core.model import DepthModel
 
-            model = DepthModel(path)
+            model = DepthModel(path, calibration=calibration)
             arch = str(model.card.get("architecture"))
             name = NAMES.get(arch, path.stem) + ("" if path.stem in (arch, "unet") else f" ({path.stem})")
             predict = model
@@ -252,7 +253,7 @@ def main(argv=None):
         if not files:
             raise SystemExit(f"{data} has no {args.split} samples")
         files = [files[i] for i in np.linspace(0, len(files) - 1, min(args.samples, len(files))).round().astype(int)]
-        figure2, figure3 = figures(files, load_models(args.models), calibration, args.panel, args.row)
+        figure2, figure3 = figures(files, load_models(args.models, calibration), calibration, args.panel, args.row)
         for name, img in (("figure2.png", figure2), ("figure3.png", figure3)):
             cv2.imwrite(str(out / name), img, PNG)
             written.append(out / name)

@@ -13,11 +13,12 @@ import torch
 import yaml
 
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
-from fpp_nodes.core.model import DepthModel, ModelError, pixel_shuffle
+from fpp_nodes.core.model import DepthModel, ModelError, default_model_path, pixel_shuffle
 from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.core.simulation import Rig
 from training.compare_codes import DESIGNS, margin
 from training.dataset import load_phase_targets, load_sample, split_files, write_set
+from training.evaluate import family_table
 from training.export import (
     CONFIDENCE_GRID,
     FLOOR_GRID,
@@ -249,9 +250,10 @@ def test_cnn_depth_node(trained, tmp_path, ros_graph):
     assert "has no card" in procs.logs() and "Traceback" not in procs.logs()
 
 
-def test_a_data_set_from_a_recorded_bag(tmp_path, near_rig, near_calibration):
+def test_a_data_set_from_a_recorded_bag(tmp_path, capsys, near_rig, near_calibration):
     """What a user with real hardware does: record full sequences, label them with the multi-shot path;
-    here a rig at 600 mm, whose labels are kept at their own depths (float32 mm)."""
+    here a rig at 600 mm, whose labels are kept at their own depths (float32 mm). The evaluation runs
+    a model with the set's calibration and, with no exact depth, judges it against the label."""
     from rclpy.serialization import serialize_message
 
     from fpp_msgs_py import header_at, numpy_to_image
@@ -290,6 +292,12 @@ def test_a_data_set_from_a_recorded_bag(tmp_path, near_rig, near_calibration):
     ok = np.isfinite(label) & capture.valid
     assert not np.isfinite(truth).any() and ok.sum() > 0.9 * capture.valid.sum()
     assert np.sqrt(np.mean((label - capture.depth_mm)[ok] ** 2)) < 0.06
+    assert write_bag_set(tmp_path / "bag", tmp_path / "set", split="test") == 1
+    capsys.readouterr()
+    family_table(str(tmp_path / "set"), [default_model_path()])
+    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("?"))
+    rmse, off, cover = (float(cell.rstrip("%")) for cell in row.split()[1:4])  # the shipped network's cells
+    assert rmse < 0.2 and off < 0.5 and cover > 90.0, row
 
 
 def test_the_phase_aware_network_trains_exports_and_runs(tmp_path):
