@@ -12,8 +12,10 @@ from .pattern_projector import PatternProjector
 
 
 def single_shot() -> CnnDepth:
-    # the composed demo lives at the root namespace; run the nodes alone to place them elsewhere
-    return CnnDepth(namespace="cnn", cli_args=["--ros-args", "-r", "camera/image_raw:=/fringe_single"])
+    # the composed demo lives at the root namespace; run the nodes alone to place them elsewhere. A
+    # replayed bag's calibration comes on /fpp/calibration, for every node of the sensor
+    remaps = ["camera/image_raw:=/fringe_single", "fpp/calibration:=/fpp/calibration"]
+    return CnnDepth(namespace="cnn", cli_args=["--ros-args", *(a for r in remaps for a in ("-r", r))])
 
 
 def main(args=None):

@@ -109,6 +109,10 @@ def test_health_on_diagnostics(ros_graph):
     card = yaml.safe_load(open(default_model_path()[:-5] + ".yaml"))
     assert diagnostics.value("/cnn/cnn_depth", "model sha256") == card["sha256"][:12]
     assert float(diagnostics.value("/cnn/cnn_depth", "latency p95 (ms)")) > 0
+    # a replayed bag's calibration reaches cnn_depth in its namespace as it reaches the others
+    for name, namespace in (("cnn_depth", "/cnn"), ("fpp_depth", "/")):
+        topics = dict(robot.node.get_subscriber_names_and_types_by_node(name, namespace))
+        assert "/fpp/calibration" in topics, (name, sorted(topics))
 
 
 def test_each_node_in_its_own_process(ros_graph):
