@@ -305,6 +305,14 @@ class Calibration:
             working_range_mm=self.working_range_mm,
         )
 
+    def fringe_period_px(self) -> float:
+        """The finest fringes' period in camera pixels at the image centre, in the middle of the working
+        range (without one: at the reference depth): what a network reading the fringes sees."""
+        near, far = self.working_range_mm or (self.reference_depth_mm,) * 2
+        cx, cy = self.camera.cx, self.camera.cy
+        phase = self.model.phase_at_depth((near + far) / 2, np.array([cx, cx + 1, cx]), np.array([cy, cy, cy + 1]))
+        return float(2 * np.pi / np.hypot(phase[1] - phase[0], phase[2] - phase[0]))
+
     def code_row_phase_at_depth(self, code: int, depth, u, v):
         """Code grating number code's row phase a pixel sees at a depth (composite calibrations only)."""
         return self.code_row_phases(u, v)(code, depth)

@@ -24,6 +24,9 @@ STRIDE = 32
 # (9 camera pixels): it masks the inside of every shadow; a longer window lets thin shadows through.
 CONTRAST_WINDOW = 9
 MIN_MODULATION = 0.05  # as the multi-shot path's QualityLimits: a fraction of full scale
+# A composite network sees a rig's fringes at the period it was trained on: the image is resampled where
+# the periods differ by more than this (surfaces tilted by 20 degrees in training already change it by 6%)
+PERIOD_TOLERANCE = 0.05
 
 
 class ModelError(ValueError):
@@ -64,7 +67,7 @@ class DepthModel:
             expected_sha = self.card["sha256"]
             self.downsample = int(self.card["input"]["downsample"])
             camera = self.card["input"]["camera"]
-            self.size = (int(camera["width"]), int(camera["height"]))
+            self.trained_size = (int(camera["width"]), int(camera["height"]))
         except (yaml.YAMLError, KeyError, TypeError, ValueError) as e:
             raise ModelError(f"model card {card_path} is malformed ({type(e).__name__}: {e})") from None
         actual = hashlib.sha256(path.read_bytes()).hexdigest()
@@ -118,9 +121,12 @@ class DepthModel:
 
     def use(self, calibration: Calibration | None) -> None:
         """Run on the rig of this calibration (None: the card's): it must show the model's single-shot
-        frame at the camera size the model was trained for. Nothing changes if it cannot be used."""
+        frame, at the camera size the model was trained for unless it is a composite model, which reads
+        any size, its images resampled so that their fringes have the period it was trained on. Nothing
+        changes if the calibration cannot be used."""
         if calibration is not None and calibration is self.calibration:
-            return  # the decoder's maps take seconds to build
+            return  # the decoder's maps take a while to build
+        size, scale = self.trained_size, 1.0
         if calibration is not None:
             if self.reads != calibration.patterns.single_shot:
                 raise ModelError(
@@ -129,9 +135,13 @@ class DepthModel:
                     "trained for it)"
                 )
             cam = calibration.camera
-            if (cam.width, cam.height) != self.size:
+            if self.output == "fringe_phases":
+                size, scale = (cam.width, cam.height), self.card_calibration.fringe_period_px()
+                scale /= calibration.fringe_period_px()
+                scale = 1.0 if abs(scale - 1) <= PERIOD_TOLERANCE else scale
+            elif (cam.width, cam.height) != size:
                 raise ModelError(
-                    f"the model was trained for {self.size[0]}x{self.size[1]} images, "
+                    f"the model was trained for {size[0]}x{size[1]} images, "
                     f"the calibration's camera is {cam.width}x{cam.height}"
                 )
         if self.card_calibration is not None:  # a depth-regressing model has the rig's geometry in the network
@@ -144,12 +154,14 @@ class DepthModel:
             except PhaseError as e:
                 whose = "its card's" if calibration is None or self.output == "fringe_order" else "the rig's"
                 raise ModelError(f"the model cannot decode with {whose} calibration: {e}") from None
-        self.calibration = calibration
+        self.calibration, self.size, self.scale = calibration, size, scale
+        # what the network reads: the image at 1/downsample, or resampled to the trained fringe period
+        self.input_size = tuple(round(n * scale) // self.downsample for n in size)
 
     def check(self, image: np.ndarray) -> None:
         if image.ndim != 2 or (image.shape[1], image.shape[0]) != self.size:
             raise ModelError(
-                f"the model takes {self.size[0]}x{self.size[1]} images (its card), got "
+                f"the model takes {self.size[0]}x{self.size[1]} images (its calibration's camera), got "
                 f"{'x'.join(map(str, image.shape[::-1]))}"
             )
         if image.dtype not in (np.uint8, np.uint16):
@@ -165,17 +177,21 @@ class DepthModel:
         padded to the stride, and at 1/pixel_shuffle of the resolution where the card says so."""
         self.check(image)
         x = network_input(image)
-        w, h = self.size[0] // self.downsample, self.size[1] // self.downsample
-        if self.downsample > 1:
-            x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA)
+        w, h = self.input_size
+        if (w, h) != self.size:
+            x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA if w < self.size[0] else cv2.INTER_LINEAR)
         x = cv2.copyMakeBorder(x, 0, (-h) % STRIDE, 0, (-w) % STRIDE, cv2.BORDER_REPLICATE)
         return self.session.run([self.output], {"image": x[None, None]})[0][0]
 
     def output_channels(self, raw: np.ndarray) -> np.ndarray:
         """outputs' channels at the network input's resolution (shuffled here, not in the network thread
-        of cnn_depth, whose time bounds the frame rate)."""
-        w, h = self.size[0] // self.downsample, self.size[1] // self.downsample
-        return (pixel_shuffle(raw, self.shuffle) if self.shuffle > 1 else raw)[:, :h, :w]
+        of cnn_depth, whose time bounds the frame rate); a phase-aware model's at the image's, where
+        it read a resampled image."""
+        w, h = self.input_size
+        out = (pixel_shuffle(raw, self.shuffle) if self.shuffle > 1 else raw)[:, :h, :w]
+        if self.scale != 1.0:
+            out = np.stack([cv2.resize(c, self.size, interpolation=cv2.INTER_LINEAR) for c in out])
+        return out
 
     def infer(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(depth mm, confidence) of one fringe image. A phase-aware model's confidence is the

@@ -313,16 +313,11 @@ def corrupt_model(folder: Path) -> Path:
     return folder / "m.onnx"
 
 
-def model_for_another_camera(folder: Path) -> Path:
-    import shutil
+def model_for_another_pattern(folder: Path) -> Path:
+    """The paper's UNet, which reads the paper's single-shot frame, on the composite's calibration."""
+    from fpp_nodes.core.model import paper_model_path
 
-    import yaml
-
-    shutil.copy(default_model_path(), folder / "m.onnx")
-    card = yaml.safe_load(Path(default_model_path()).with_suffix(".yaml").read_text())
-    card["input"]["camera"] = {"width": 320, "height": 240}
-    (folder / "m.yaml").write_text(yaml.safe_dump(card))
-    return folder / "m.onnx"
+    return Path(paper_model_path())
 
 
 def tampered_model(folder: Path) -> Path:
@@ -342,7 +337,7 @@ def tampered_model(folder: Path) -> Path:
         (lambda folder: folder / "missing.onnx", "does not exist"),
         (corrupt_model, "cannot load model"),
         (tampered_model, "does not match its card"),
-        (model_for_another_camera, "trained for 320x240 images"),
+        (model_for_another_pattern, "reads the 'paper' single-shot frame"),
     ],
 )
 def test_a_missing_corrupt_or_mismatched_model_is_one_fatal_line(ros_graph, tmp_path, make, message):
