@@ -35,6 +35,9 @@ class Reconstruction:
     modulation: np.ndarray | None = None  # (H, W) float32: PSP the fringe modulation B, image units
 
 
+WRAP_SIGMAS = 5.0  # how far, in its noise, the lowest frequency's phase must be from its wrap
+
+
 @dataclass(frozen=True)
 class QualityLimits:
     """Which pixels to trust. The multi-shot path keeps a pixel whose expected depth noise (its phase
@@ -101,7 +104,14 @@ def multi_frequency_phase(
         np.float32(limits.max_order_residual / TWO_PI),
         np.float32(full_scale(images.dtype) if integer else np.inf),  # float images: no saturation known
     )
-    return phase, valid, modulation, pooled_phase_noise(power, modulation, n, integer)
+    noise = pooled_phase_noise(power, modulation, n, integer)
+    # Every frequency's phase is the same at the projector's first and last columns: where noise could
+    # carry the lowest one across its wrap, the order would be a whole turn of it off (a camera that
+    # sees the projector's side edges). The top phase's noise bounds the lowest's (blur cuts fine
+    # fringes' contrast most).
+    turn = np.float32(TWO_PI * frequencies[-1] / frequencies[0])
+    valid &= np.minimum(phase, turn - phase) > np.float32(WRAP_SIGMAS * turn / TWO_PI) * noise
+    return phase, valid, modulation, noise
 
 
 def full_scale(dtype) -> float:

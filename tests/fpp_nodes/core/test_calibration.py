@@ -137,3 +137,18 @@ def test_the_shipped_calibration_is_what_fpp_demo_makes(rig, patterns):
         phase = true.phase_at_depth(z, u, v)
         difference = made.model.depth(phase, u, v) - shipped.model.depth(phase, u, v)
         assert np.abs(difference).max() < 1e-4, (z, np.abs(difference).max())
+
+
+def test_a_camera_that_sees_the_projectors_side_edges_calibrates(patterns):
+    """A projector whose light does not fill the view (220 -> 170 mm wide): at its first and last
+    columns every frequency's phase is the same, so where noise carries the lowest one across its wrap
+    the order is a whole turn (100 orders) off. Pixels within 5 sigma of the wrap are dropped, and the
+    fit from noisy planes holds to 0.03 mm RMS on every plane (measured 0.014-0.017 mm; before,
+    24-29000 mm)."""
+    from fpp_nodes.core.simulation import Rig
+    from fpp_nodes.core.workflow import simulated_calibration
+
+    rig = replace(Rig(), projector_field_mm=170.0)
+    planes = (1140.0, 1170.0, 1200.0, 1230.0, 1260.0)
+    _, residuals = simulated_calibration(rig, patterns, 1, planes, working_range_mm=None)
+    assert max(residuals) < 0.03, residuals
