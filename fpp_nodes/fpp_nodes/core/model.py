@@ -50,8 +50,8 @@ class DepthModel:
     """An exported single-shot model and its card. A composite model's network reads the pattern's
     phases off the image, which no rig's geometry enters; the rig's calibration (calibration, by
     default the card's: the training rig's) turns them into depth, so it runs on any rig that shows
-    its pattern with the camera size it was trained for. The paper-pattern phase network's order is
-    relative to its training rig's reference depth, so it decodes with its card's calibration only."""
+    its pattern (use). The paper-pattern phase network's order is relative to its training rig's
+    reference depth, so it decodes with its card's calibration only."""
 
     def __init__(self, path, providers=("CPUExecutionProvider",), threads: int = 2, calibration=None):
         import onnxruntime as ort
