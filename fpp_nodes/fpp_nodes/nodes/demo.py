@@ -39,13 +39,19 @@ class DemoRobot(Node):
         self.create_subscription(
             Image, Topics.CAMERA_IMAGE, lambda m: self.frames.__setitem__(stamp_ns(m.header.stamp), clock()), Qos.FRAMES
         )
-        self.create_subscription(PointCloud2, Topics.POINTS, lambda m: self.clouds.append((m, clock())), Qos.LARGE)
+        self.create_subscription(PointCloud2, Topics.POINTS, self._on_cloud, Qos.LARGE)
         self.create_subscription(
             PointCloud2, "cnn/" + Topics.POINTS, lambda m: self.cnn_clouds.append((m, clock())), Qos.LARGE
         )
         self.create_subscription(
             Image, Topics.TRUTH, lambda m: setattr(self, "truth", image_to_numpy(m).copy()), Qos.LATCHED
         )
+
+    def _on_cloud(self, cloud: PointCloud2):
+        """A cloud counts when this robot saw its sequence's first frame (it is stamped with it): one that
+        began before the subscription matched cannot have its latency told."""
+        if stamp_ns(cloud.header.stamp) in self.frames:
+            self.clouds.append((cloud, time.time_ns()))
 
 
 def main(argv=None):
