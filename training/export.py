@@ -119,9 +119,10 @@ def rule_name(floor: float, surface_px: int, roughness_mm: float) -> str:
 @torch.no_grad()
 def choose_decoding(model, data: str, decoder, limit: int = 200) -> dict:
     """The fringe mask's floor, the smallest surface (composite decoders) and the order-confidence
-    threshold that give the most coverage while the silent errors (output pixels off the exact depth
-    by more than 1 mm) stay within SILENT_ERROR_BUDGET over the validation split and within
-    SILENT_ERROR_LIMIT in each of its scene families: chosen on validation data, never on the test set."""
+    threshold that give the most coverage while the silent errors (output pixels off the exact depth,
+    in a recorded set the multi-shot label, by more than 1 mm) stay within SILENT_ERROR_BUDGET over the
+    validation split and within SILENT_ERROR_LIMIT in each of its scene families: chosen on validation
+    data, never on the test set."""
 
     files = split_files(data, "val")[:limit]
 
