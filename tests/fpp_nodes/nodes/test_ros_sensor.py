@@ -31,13 +31,15 @@ def rmse_mm(cloud: PointCloud2, truth_m: np.ndarray):
 
 def projector_and_camera(robot):
     """Publishers playing projector and camera, once capture_sequence hears both and fpp_depth's
-    points are discovered (then a second for discovery to settle both ways)."""
+    points and its subscription to the sequences are discovered (fpp_depth makes that last: a
+    sequence sent before it is matched is lost; then a second for discovery to settle both ways)."""
     pattern_pub = robot.node.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)
     camera_pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
     heard = (
         pattern_pub.get_subscription_count,
         camera_pub.get_subscription_count,
         lambda: robot.node.count_publishers(Topics.POINTS),
+        lambda: robot.node.count_subscribers(Topics.SEQUENCE),
     )
     assert robot.spin_until(lambda: all(f() for f in heard), 30)
     time.sleep(1.0)
