@@ -223,7 +223,8 @@ def test_the_shipped_single_shot_model_measures_a_rig_at_another_standoff_throug
     """The network reads the pattern's phases, the rig's calibration makes them depth: on a rig at 600 mm
     (trained at 1000-1350 mm), two scenes it never saw keep over 90% of the lit pixels (measured 94-96%)
     with at most 0.5% off by more than 1 mm (0-0.12%) and RMSE under 0.2 mm (0.025-0.084 mm). Decoded
-    with its card's calibration (the training rig's) as before, 54-59% came out about 600 mm off."""
+    with its card's calibration (the training rig's) as before, 54-59% came out about 600 mm off (a
+    throwaway script)."""
     from fpp_nodes.core.model import DepthModel, ModelError, default_model_path, paper_model_path
 
     model = DepthModel(default_model_path(), calibration=near_calibration)
