@@ -25,7 +25,7 @@ from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import network_input, trusted_single_shot
 from fpp_nodes.core.reconstruct import CompositeDecoder, reconstruct_ftp
-from fpp_nodes.core.workflow import fringe_depth_mm
+from fpp_nodes.core.workflow import fringe_depth_mm, wrong_order_mm
 
 from .dataset import load_sample, reference_depth, sample_family, split_files
 from .models import pad_to_stride
@@ -55,7 +55,8 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     multi-shot label), silent errors (the share of output pixels off
     it by more than SILENT_ERROR_MM), coverage (the share of lit pixels given a depth) and, for a
     phase-aware model, the mean confidence in the fringe order over the lit pixels that show fringes;
-    beside them FTP on the same images where the set is the composite's, and the multi-shot label."""
+    beside them FTP on the same images where the set is the composite's, and the multi-shot label.
+    Wrong orders: the share of output pixels off by more than half a fringe order (wrong_order_mm)."""
     from .figures import load_models
 
     info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
@@ -66,7 +67,12 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
         models.append(("FTP (composite)", lambda image: reconstruct_ftp(image, calibration, decoder=decoder).depth_mm))
     models.append(("multi-shot (the label)", None))  # what all the sequence's images measure: the reference
     held_out = set(info.get("held_out_families", []))
-    errors, sure = {}, {}  # (family, model) -> ErrorTotals against the exact depth; [confidence sum, pixels]
+    wrong_order = wrong_order_mm(calibration)
+    errors, orders, sure = (
+        {},
+        {},
+        {},
+    )  # (family, model) -> ErrorTotals against the exact depth; [confidence sum, pixels]
     for f in split_files(data, split)[: limit or None]:
         family = sample_family(f, info.get("scene", "?"))
         image, label, truth = load_sample(f)
@@ -80,6 +86,7 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
                 else (predict(image), None)
             )
             errors.setdefault((family, name), ErrorTotals()).add(depth, reference, SILENT_ERROR_MM)
+            orders.setdefault((family, name), ErrorTotals()).add(depth, reference, wrong_order)
             if confidence is not None:
                 known = confidence[np.isfinite(confidence) & np.isfinite(reference)]
                 totals = sure.setdefault((family, name), [0.0, 0])
@@ -87,20 +94,23 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     names = [n for n, _ in models]
     families = sorted({f for f, _ in errors}, key=lambda f: (f in held_out, f))
     print(f"{split} split of {data}, by scene family (* held out of training and validation)")
-    print(f"{'family':14}" + "".join(f"{n[:30]:>32}" for n in names))
-    print(f"{'':14}" + "".join(f"{'RMSE mm  >1mm   cover  conf':>32}" for _ in names))
+    print(f"{'family':14}" + "".join(f"{n[:36]:>38}" for n in names))
+    print(f"{'':14}" + "".join(f"{'RMSE mm  >1mm  orders   cover  conf':>38}" for _ in names))
     for family in families:
         cells = []
         for n in names:
             e, (conf, known) = errors[(family, n)], sure.get((family, n), (0.0, 0))
             rmse = f"{e.rmse:8.3f}" if e.compared else f"{'-':>8}"
+            wrong = orders[(family, n)].share_over
             cells.append(
-                f"{rmse} {e.share_over:6.2%} {e.coverage:7.1%} " + (f"{conf / known:5.2f}" if known else f"{'-':>5}")
+                f"{rmse} {e.share_over:6.2%} {wrong:6.3%} {e.coverage:7.1%} "
+                + (f"{conf / known:5.2f}" if known else f"{'-':>5}")
             )
-        print(f"{family + (' *' if family in held_out else ''):14}" + "".join(f"{c:>32}" for c in cells))
+        print(f"{family + (' *' if family in held_out else ''):14}" + "".join(f"{c:>38}" for c in cells))
     print(
         "RMSE against the exact depth (a recorded set's: the multi-shot label) over the pixels given a depth; "
-        f">1mm: share of those off by more than {SILENT_ERROR_MM:g} mm (silent errors); cover: share of lit "
+        f">1mm: share of those off by more than {SILENT_ERROR_MM:g} mm (silent errors); orders: off by more than "
+        f"half a fringe order ({wrong_order:.1f} mm, wrong orders); cover: share of lit "
         "pixels given a depth; conf: a phase-aware model's mean confidence in the fringe order over the lit "
         "pixels that show fringes"
     )

@@ -21,6 +21,7 @@ import hashlib
 import warnings
 from pathlib import Path
 
+import cv2
 import numpy as np
 import onnx
 import onnxruntime as ort
@@ -39,6 +40,7 @@ from fpp_nodes.core.model import (
 )
 from fpp_nodes.core.patterns import PatternSet
 from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits
+from fpp_nodes.core.workflow import wrong_order_mm
 
 from .dataset import load_sample, reference_depth, sample_family, split_files
 from .train import load_checkpoint, model_from_checkpoint, predict
@@ -53,10 +55,12 @@ def sha256(path) -> str:
 
 SILENT_ERROR_BUDGET = 0.005  # the share of output pixels off by > 1 mm the rules may leave, on validation
 SILENT_ERROR_LIMIT = 0.01  # ... and in any one validation scene family (the single-shot issue's limit)
+WRONG_ORDER_BUDGET = 1e-4  # ... and off by more than half a fringe order (wrong_order_mm): a guessed order
 CONFIDENCE_GRID = (0.0, 0.25, 0.5, 0.6, 0.7, 0.75, 0.8, 0.82, 0.84, 0.86, 0.88, 0.9, 0.92, 0.95, 0.98, 0.99, 0.999)
 FLOOR_GRID = (0.01, 0.02, 0.03, 0.05)  # the fringe mask's floor: the network's modulation, of full scale
 SURFACE_GRID = (0, 500, 2000)  # the composite decoder's smallest surface (pixels) whose vote counts
 ROUGHNESS_GRID = (0.15, 0.2, 0.25, 0.3, 0.4, 0.5, np.inf)  # the composite's roughness rule (mm; inf: none)
+MARGIN_GRID = (0, 1, 2, 3)  # pixels around a refused pixel that are refused too (model.refusal_margin)
 OUTPUTS = {"phase": "fringe_order", "composite": "fringe_phases"}  # other architectures: depth_mm
 
 
@@ -68,12 +72,14 @@ def rule_counts(
     steps_mm=(QualityLimits.max_depth_step_mm,),
     surfaces_px=(0,),
     roughness_mm=(np.inf,),
+    margins_px=(0,),
+    wrong_order=np.inf,
 ) -> dict:
-    """(floor, surface px, confidence, step, roughness) -> {family: [output pixels, silent errors (off
-    the exact depth by > 1 mm), exact pixels]} over samples of (image, exact depth, network outputs,
-    family), decoded as DepthModel.infer does with that fringe-mask floor, smallest surface (a
-    composite decoder's min_surface_px), order-confidence threshold, edge-rule step and roughness
-    limit."""
+    """(floor, surface px, confidence, step, roughness, margin px) -> {family: [output pixels, silent
+    errors (off the exact depth by > 1 mm), exact pixels, wrong orders (off by more than wrong_order
+    mm)]} over samples of (image, exact depth, network outputs, family), decoded as DepthModel.infer
+    does with that fringe-mask floor, smallest surface (a composite decoder's min_surface_px),
+    order-confidence threshold, edge-rule step, roughness limit and refusal margin."""
     counts = {}
     for image, truth, out, family in samples:
         exact = np.isfinite(truth)
@@ -90,39 +96,56 @@ def rule_counts(
                     mean, roughness = local_depth(shown)
                     for r in roughness_mm:
                         if np.isfinite(r):  # a roughness limit keeps the window's mean
-                            smooth, wrong = exact & (roughness <= r), np.abs(mean - truth) > 1.0
+                            smooth, error = roughness <= r, np.abs(mean - truth)
                         else:
-                            smooth, wrong = exact & np.isfinite(shown), np.abs(shown - truth) > 1.0
+                            smooth, error = np.isfinite(shown), np.abs(shown - truth)
+                        wrong, guessed = exact & (error > 1.0), exact & (error > wrong_order)
                         for c in confidences:
-                            ok = smooth & (confidence >= c)
-                            n = counts.setdefault((m, px, c, s, r), {}).setdefault(family, np.zeros(3))
-                            n += (ok.sum(), np.count_nonzero(wrong & ok), exact.sum())
+                            given = smooth & (confidence >= c)
+                            if max(margins_px) > 0:  # how far each pixel is from a refused one (refusal_margin)
+                                refused = fringes & ~given
+                                far = cv2.distanceTransform((~refused).view(np.uint8), cv2.DIST_C, 3)
+                            for k in margins_px:
+                                ok = given & (far > k) if k else given
+                                n = counts.setdefault((m, px, c, s, r, k), {}).setdefault(family, np.zeros(4))
+                                n += (
+                                    ok.sum(),
+                                    np.count_nonzero(wrong & ok),
+                                    exact.sum(),
+                                    np.count_nonzero(guessed & ok),
+                                )
     return counts
 
 
 def rule_rates(by_family: dict) -> dict:
-    """One rule's counts by family -> coverage and silent errors over all families, and the worst
-    family's silent errors."""
+    """One rule's counts by family -> coverage, silent errors and wrong orders over all families, and
+    the worst family's silent errors."""
     n = sum(by_family.values())
     return {
         "coverage": n[0] / max(n[2], 1),
         "silent_errors": n[1] / max(n[0], 1),
         "worst_family_silent_errors": max(f[1] / max(f[0], 1) for f in by_family.values()),
+        "wrong_orders": n[3] / max(n[0], 1),
     }
 
 
-def rule_name(floor: float, surface_px: int, roughness_mm: float) -> str:
+def rule_name(floor: float, surface_px: int, roughness_mm: float, margin_px: int = 0) -> str:
     """How a card's validation table names one combination of the rules."""
-    return f"floor {floor} surface {surface_px}" + (f" roughness {roughness_mm}" if np.isfinite(roughness_mm) else "")
+    return (
+        f"floor {floor} surface {surface_px}"
+        + (f" roughness {roughness_mm}" if np.isfinite(roughness_mm) else "")
+        + (f" margin {margin_px}" if margin_px else "")
+    )
 
 
 @torch.no_grad()
-def choose_decoding(model, data: str, decoder, limit: int = 200) -> dict:
-    """The fringe mask's floor, the smallest surface (composite decoders) and the order-confidence
-    threshold that give the most coverage while the silent errors (output pixels off the exact depth,
-    in a recorded set the multi-shot label, by more than 1 mm) stay within SILENT_ERROR_BUDGET over the
-    validation split and within SILENT_ERROR_LIMIT in each of its scene families: chosen on validation
-    data, never on the test set."""
+def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: int = 200) -> dict:
+    """The fringe mask's floor, the smallest surface, the roughness limit and the refusal margin
+    (composite decoders) and the order-confidence threshold that give the most coverage while the
+    silent errors (output pixels off the exact depth, in a recorded set the multi-shot label, by more
+    than 1 mm) stay within SILENT_ERROR_BUDGET over the validation split and within SILENT_ERROR_LIMIT
+    in each of its scene families, and the wrong orders within WRONG_ORDER_BUDGET: chosen on
+    validation data, never on the test set."""
 
     files = split_files(data, "val")[:limit]
 
@@ -133,35 +156,49 @@ def choose_decoding(model, data: str, decoder, limit: int = 200) -> dict:
             yield image, reference_depth(label, truth), out, sample_family(f)
 
     composite = hasattr(decoder, "min_surface_px")
-    surfaces, roughness = (SURFACE_GRID, ROUGHNESS_GRID) if composite else ((0,), (np.inf,))
-    counts = rule_counts(samples(), decoder, FLOOR_GRID, CONFIDENCE_GRID, surfaces_px=surfaces, roughness_mm=roughness)
-    rows = {(m, px, c, r): rule_rates(n) for (m, px, c, _, r), n in counts.items()}
+    surfaces, roughness, margins = (SURFACE_GRID, ROUGHNESS_GRID, MARGIN_GRID) if composite else ((0,), (np.inf,), (0,))
+    wrong_order = wrong_order_mm(calibration)
+    counts = rule_counts(
+        samples(),
+        decoder,
+        FLOOR_GRID,
+        CONFIDENCE_GRID,
+        (QualityLimits.max_depth_step_mm,),
+        surfaces,
+        roughness,
+        margins,
+        wrong_order,
+    )
+    rows = {(m, px, c, r, k): rule_rates(n) for (m, px, c, _, r, k), n in counts.items()}
     good = [
-        k
-        for k, r in rows.items()
+        key
+        for key, r in rows.items()
         if r["silent_errors"] <= SILENT_ERROR_BUDGET
         and r["worst_family_silent_errors"] <= SILENT_ERROR_LIMIT
+        and r["wrong_orders"] <= WRONG_ORDER_BUDGET
         and r["coverage"] > 0
     ]
-    floor, surface, confidence, rough = (
+    floor, surface, confidence, rough, margin = (
         max(good, key=lambda k: (rows[k]["coverage"], k[2], -k[3]))
         if good
-        else (MIN_MODULATION, surfaces[-1], CONFIDENCE_GRID[-1], roughness[0])
+        else (MIN_MODULATION, surfaces[-1], CONFIDENCE_GRID[-1], roughness[0], margins[-1])
     )
     chosen = {"min_confidence": confidence, "min_modulation": floor}
     if composite:
-        chosen |= {"min_surface_px": surface, "max_roughness_mm": rough}
+        chosen |= {"min_surface_px": surface, "max_roughness_mm": rough, "margin_px": margin}
     return chosen | {
         "chosen_on": f"{data} val, {len(files)} scenes",
         "silent_error_budget": SILENT_ERROR_BUDGET,
         "silent_error_limit_per_family": SILENT_ERROR_LIMIT,
-        "validation": {
-            rule_name(m, px, r): {
-                str(c): {k: round(float(v), 5) for k, v in rows[m, px, c, r].items()} for c in CONFIDENCE_GRID
+        "wrong_order_budget": WRONG_ORDER_BUDGET,
+        "wrong_order_mm": round(wrong_order, 2),
+        "validation": {  # at the chosen floor and smallest surface (all of them: a megabyte of card)
+            rule_name(floor, surface, r, k): {
+                str(c): {name: round(float(v), 6) for name, v in rows[floor, surface, c, r, k].items()}
+                for c in CONFIDENCE_GRID
             }
-            for m in FLOOR_GRID
-            for px in surfaces
             for r in roughness
+            for k in margins
         },
     }
 
@@ -270,7 +307,7 @@ def export(
         decoder = (CompositeDecoder if cfg.arch == "composite" else PhaseOrderDecoder)(
             Calibration.from_dict(calibration)
         )
-        card["decoding"] = choose_decoding(model, str(data), decoder)
+        card["decoding"] = choose_decoding(model, str(data), decoder, Calibration.from_dict(calibration))
     out.with_suffix(".yaml").write_text(yaml.safe_dump(card, sort_keys=False))
     return card
 

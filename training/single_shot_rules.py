@@ -6,7 +6,8 @@ order-confidence threshold, the other rules as the shipped card has them:
   rule);
 - the fringe mask's floor (fringe_mask: the network's fringe modulation, a fraction of full scale);
 - the decoder's smallest surface whose vote counts (CompositeDecoder.min_surface_px);
-- the roughness limit (trusted_single_shot drops a pixel whose neighbourhood's depth scatters more).
+- the roughness limit (trusted_single_shot drops a pixel whose neighbourhood's depth scatters more);
+- the refusal margin (refusal_margin drops the pixels this near a pixel refused where fringes show).
 
     python -m training.single_shot_rules [--data data/fpp/composite]
 """
@@ -21,7 +22,7 @@ from fpp_nodes.core.model import DepthModel, default_model_path
 from fpp_nodes.core.reconstruct import QualityLimits
 
 from .dataset import load_sample, sample_family, split_files
-from .export import FLOOR_GRID, ROUGHNESS_GRID, SURFACE_GRID, rule_counts, rule_rates
+from .export import FLOOR_GRID, MARGIN_GRID, ROUGHNESS_GRID, SURFACE_GRID, rule_counts, rule_rates
 
 CONFIDENCES = (0.5, 0.7, 0.75, 0.8, 0.82, 0.84, 0.86, 0.88, 0.9, 0.92, 0.95)
 STEPS_MM = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, np.inf)
@@ -42,31 +43,39 @@ def main():
     for f in files:
         image, _, truth = load_sample(f)
         outputs.append((image, truth, model.output_channels(model.outputs(image)), sample_family(f)))
-    floor, surface, rough = model.min_modulation, model.decoder.min_surface_px, (model.max_roughness_mm,)
-    counts = rule_counts(outputs, model.decoder, (floor,), CONFIDENCES, STEPS_MM, (surface,), rough)
-    counts.update(
-        rule_counts(outputs, model.decoder, FLOOR_GRID, CONFIDENCES, surfaces_px=(surface,), roughness_mm=rough)
+    floor, surface, rough, margin = (
+        model.min_modulation,
+        model.decoder.min_surface_px,
+        model.max_roughness_mm,
+        model.margin_px,
     )
-    counts.update(
-        rule_counts(outputs, model.decoder, (floor,), CONFIDENCES, surfaces_px=SURFACE_GRID, roughness_mm=rough)
-    )
-    counts.update(
-        rule_counts(outputs, model.decoder, (floor,), CONFIDENCES, surfaces_px=(surface,), roughness_mm=ROUGHNESS_GRID)
-    )
-    r = rough[0]
+    shipped = dict(floors=(floor,), surfaces_px=(surface,), roughness_mm=(rough,), margins_px=(margin,))
+
+    def count(**varied):
+        counts.update(rule_counts(outputs, model.decoder, confidences=CONFIDENCES, **(shipped | varied)))
+
+    counts = {}
+    count(steps_mm=STEPS_MM)
+    count(floors=FLOOR_GRID)
+    count(surfaces_px=SURFACE_GRID)
+    count(roughness_mm=ROUGHNESS_GRID)
+    count(margins_px=MARGIN_GRID)
     print(f"{args.data} validation split, {len(files)} scenes; each cell: coverage, silent errors")
-    table("edge rule step", [(f"step {s:g} mm", (floor, surface, s, r)) for s in STEPS_MM], counts)
-    table("fringe mask floor", [(f"floor {m:g}", (m, surface, STEP, r)) for m in FLOOR_GRID], counts)
-    table("smallest surface", [(f"surface {px} px", (floor, px, STEP, r)) for px in SURFACE_GRID], counts)
-    table("roughness limit", [(f"roughness {x:g} mm", (floor, surface, STEP, x)) for x in ROUGHNESS_GRID], counts)
+    table("edge rule step", [(f"step {s:g} mm", (floor, surface, s, rough, margin)) for s in STEPS_MM], counts)
+    table("fringe mask floor", [(f"floor {m:g}", (m, surface, STEP, rough, margin)) for m in FLOOR_GRID], counts)
+    table("smallest surface", [(f"surface {px} px", (floor, px, STEP, rough, margin)) for px in SURFACE_GRID], counts)
+    table(
+        "roughness limit", [(f"roughness {x:g} mm", (floor, surface, STEP, x, margin)) for x in ROUGHNESS_GRID], counts
+    )
+    table("refusal margin", [(f"margin {k} px", (floor, surface, STEP, rough, k)) for k in MARGIN_GRID], counts)
 
 
 def table(title: str, columns: list, counts: dict) -> None:
     print(f"\n{title}\n{'confidence':>10} " + " ".join(f"{name:>16}" for name, _ in columns))
     for c in CONFIDENCES:
         cells = []
-        for _, (floor, surface, step, rough) in columns:
-            r = rule_rates(counts[floor, surface, c, step, rough])
+        for _, (floor, surface, step, rough, margin) in columns:
+            r = rule_rates(counts[floor, surface, c, step, rough, margin])
             cells.append(f"{r['coverage']:7.1%} {r['silent_errors']:7.2%}")
         print(f"{c:>10} " + " ".join(f"{cell:>16}" for cell in cells))
 

@@ -22,10 +22,12 @@ from training.evaluate import family_table
 from training.export import (
     CONFIDENCE_GRID,
     FLOOR_GRID,
+    MARGIN_GRID,
     ROUGHNESS_GRID,
     SILENT_ERROR_BUDGET,
     SILENT_ERROR_LIMIT,
     SURFACE_GRID,
+    WRONG_ORDER_BUDGET,
     HalfResolution,
     export,
     rule_name,
@@ -300,8 +302,8 @@ def test_a_data_set_from_a_recorded_bag(tmp_path, capsys, near_rig, near_calibra
     capsys.readouterr()
     family_table(str(tmp_path / "set"), [default_model_path()])
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("?"))
-    rmse, off, cover = (float(cell.rstrip("%")) for cell in row.split()[1:4])  # the shipped network's cells
-    assert rmse < 0.2 and off < 0.5 and cover > 90.0, row
+    rmse, off, orders, cover = (float(cell.rstrip("%")) for cell in row.split()[1:5])  # the shipped network's cells
+    assert rmse < 0.2 and off < 0.5 and orders < 0.05 and cover > 90.0, row
 
 
 def test_the_phase_aware_network_trains_exports_and_runs(tmp_path):
@@ -366,9 +368,10 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     assert model.min_modulation == card["decoding"]["min_modulation"] in FLOOR_GRID
     assert model.decoder.min_surface_px == card["decoding"]["min_surface_px"] in SURFACE_GRID
     assert model.max_roughness_mm == card["decoding"]["max_roughness_mm"] in ROUGHNESS_GRID
-    rule = rule_name(model.min_modulation, model.decoder.min_surface_px, model.max_roughness_mm)
+    assert model.margin_px == card["decoding"]["margin_px"] in MARGIN_GRID
+    rule = rule_name(model.min_modulation, model.decoder.min_surface_px, model.max_roughness_mm, model.margin_px)
     chosen = card["decoding"]["validation"][rule][str(model.min_confidence)]
-    within = chosen["silent_errors"] <= SILENT_ERROR_BUDGET
+    within = chosen["silent_errors"] <= SILENT_ERROR_BUDGET and chosen["wrong_orders"] <= WRONG_ORDER_BUDGET
     assert (within and chosen["worst_family_silent_errors"] <= SILENT_ERROR_LIMIT) or (
         model.min_confidence == CONFIDENCE_GRID[-1]
     )

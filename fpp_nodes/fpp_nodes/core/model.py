@@ -103,6 +103,7 @@ class DepthModel:
                 self.min_modulation = float(self.card["decoding"].get("min_modulation", MIN_MODULATION))
                 self.max_roughness_mm = float(self.card["decoding"].get("max_roughness_mm", np.inf))
                 self.min_surface_px = int(self.card["decoding"].get("min_surface_px", 0))
+                self.margin_px = int(self.card["decoding"].get("margin_px", 0))  # cards before it: none
             except (KeyError, TypeError, ValueError) as e:  # CalibrationError is a ValueError
                 raise ModelError(
                     f"model card {card_path} lacks the calibration or decoding of a phase-aware "
@@ -195,8 +196,9 @@ class DepthModel:
 
     def infer(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(depth mm, confidence) of one fringe image. A phase-aware model's confidence is the
-        probability that each pixel's fringe order is right (NaN depth below its threshold; NaN itself
-        where the image shows no usable fringes); a depth-regressing model has none."""
+        probability that each pixel's fringe order is right (NaN depth below its threshold, and within
+        its card's margin of a pixel refused where fringes show: refusal_margin; NaN itself where the
+        image shows no usable fringes); a depth-regressing model has none."""
         return self.decode(image, self.outputs(image))
 
     def decode(self, image: np.ndarray, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -207,6 +209,7 @@ class DepthModel:
             depth, confidence = self.decoder(out, 0.0, fringes)  # every pixel whose order its neighbours share
             depth = trusted_single_shot(depth, image, fringes=fringes, max_roughness_mm=self.max_roughness_mm)
             depth[~(confidence >= self.min_confidence)] = np.nan
+            refusal_margin(depth, fringes, self.margin_px)
             return depth, confidence
         depth = cv2.resize(out[0], self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else out[0]
         return trusted_single_shot(depth, image), None
@@ -289,6 +292,17 @@ def trusted_single_shot(
         np.copyto(depth, mean)
         depth[~(roughness <= max_roughness_mm)] = np.nan
     return depth
+
+
+def refusal_margin(depth: np.ndarray, fringes: np.ndarray, margin_px: int) -> None:
+    """Set depth to NaN (in place) within margin_px pixels (a square) of a pixel that shows fringes but
+    was given no depth. The network's errors are correlated over its receptive field, so a pixel the
+    rules refused is evidence against its neighbours: on validation the wrong orders the rules let
+    through sit beside refused pixels. A shadow (no fringes) is no such evidence."""
+    if margin_px > 0:
+        refused = (fringes & np.isnan(depth)).view(np.uint8)
+        near = cv2.dilate(refused, np.ones((2 * margin_px + 1,) * 2, np.uint8))
+        depth[near.view(bool)] = np.nan
 
 
 ROUGHNESS_WINDOW = CONTRAST_WINDOW  # pixels: one period of the default rig's carrier

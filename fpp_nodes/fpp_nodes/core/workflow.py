@@ -139,6 +139,16 @@ def fringe_depth_mm(calibration: Calibration, phase: np.ndarray) -> np.ndarray:
     return np.abs(calibration.model.depth_per_radian(phase, u, v)) * 2.0 * np.pi
 
 
+def wrong_order_mm(calibration: Calibration) -> float:
+    """Half the depth one fringe order spans (the median over the image) at the near end of the working
+    range (the reference depth where it has none): an error beyond it is a wrong order."""
+    cam = calibration.camera
+    near = calibration.working_range_mm[0] if calibration.working_range_mm else calibration.reference_depth_mm
+    u, v = cam.ideal_pixels()
+    phase = np.broadcast_to(calibration.model.phase_at_depth(near, u, v), cam.shape)
+    return float(np.median(fringe_depth_mm(calibration, phase))) / 2
+
+
 def score(
     rec: Reconstruction, truth_depth, truth_valid, calibration: Calibration, noise_sigma: float, name: str
 ) -> SceneResult:

@@ -11,7 +11,8 @@ its health on /diagnostics. A phase-aware model also gives confidence/image (32F
 composite model the share of the pixels around it, and of its whole surface, whose codes give the
 order chosen there, the lesser of the two; for the paper-pattern phase model the probability that
 the order is right; depth is NaN below
-the threshold its card holds, chosen on validation data). A frame of the wrong size or encoding is
+the threshold its card holds, and within its card's margin of a pixel refused so, both chosen on
+validation data). A frame of the wrong size or encoding is
 rejected and counted; a missing, corrupt or mismatched model stops the node at start. Parameters:
 model (path; empty = the shipped default), providers (CPUExecutionProvider; CUDA where present),
 threads (onnxruntime intra-op threads), min_confidence (negative: the model card's), calibration

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from fpp_nodes.core.calibration import Calibration, CalibrationError
-from fpp_nodes.core.model import local_depth
+from fpp_nodes.core.model import local_depth, refusal_margin
 from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.phase import PhaseError
 from fpp_nodes.core.reconstruct import CompositeDecoder, order_surfaces
 from fpp_nodes.core.scenes import FAMILY_NAMES, SURFACE_DEPTH_MM, make_scene, plane_scene
 from fpp_nodes.core.simulation import Rig, SceneRenderer, random_rig
-from fpp_nodes.core.workflow import simulated_calibration
+from fpp_nodes.core.workflow import simulated_calibration, wrong_order_mm
 
 
 def exact_phases(renderer, patterns):
@@ -234,3 +234,34 @@ def test_local_depth_is_the_neighbourhood_mean_and_scatter():
     assert np.nanmedian(rough) == pytest.approx(0.3, rel=0.1)
     assert np.nanstd((mean - plane)[inside]) == pytest.approx(0.3 / 9, rel=0.2)
     assert all(np.isnan(a).all() for a in local_depth(np.full((20, 20), np.nan, np.float32)))
+
+
+def test_the_refusal_margin_spreads_from_refused_pixels_not_from_shadows():
+    """A pixel within the margin (a square) of one that shows fringes but has no depth has none; beside
+    a shadow (no fringes) depth stays; no margin, nothing changes."""
+    depth = np.full((40, 60), 1200.0, np.float32)
+    fringes = np.ones(depth.shape, bool)
+    depth[10:14, 10:14] = np.nan  # refused: fringes, no depth
+    depth[20:30, 40:50] = np.nan
+    fringes[20:30, 40:50] = False  # a shadow
+    untouched = depth.copy()
+    refusal_margin(depth, fringes, 0)
+    np.testing.assert_array_equal(depth, untouched)
+    refusal_margin(depth, fringes, 2)
+    gone = np.isnan(depth) & np.isfinite(untouched)
+    expected = np.zeros(depth.shape, bool)
+    expected[8:16, 8:16] = True
+    expected[10:14, 10:14] = False  # NaN before
+    np.testing.assert_array_equal(gone, expected)
+
+
+def test_a_wrong_order_is_half_an_orders_depth_at_the_near_end(calibration):
+    """wrong_order_mm: one carrier period at the near end of the simulated rig's working range (1000 mm)
+    spans about 2 x 4.7 mm, less than at the reference depth (depth per phase grows with depth)."""
+    cam = calibration.camera
+    u, v = (np.float64(cam.width / 2), np.float64(cam.height / 2))
+    near = calibration.working_range_mm[0]
+    phase = calibration.model.phase_at_depth(near, u, v)
+    one_order = abs(float(calibration.model.depth(phase + 2 * np.pi, u, v)) - near)
+    assert wrong_order_mm(calibration) == pytest.approx(one_order / 2, rel=0.03)
+    assert wrong_order_mm(replace(calibration, working_range_mm=None)) > wrong_order_mm(calibration)
