@@ -1,6 +1,7 @@
 """The single-shot path's pixel rules, re-checked on validation data: the shipped composite network on
 the composite set's validation split (never its test split). Each cell: coverage of the exact depth's
-pixels, and silent errors (output pixels off by more than 1 mm). Four tables, each against the
+pixels, and silent errors (output pixels off by more than 1 mm); in the margin's table also wrong
+orders (off by more than half a fringe order: wrong_order_mm). Five tables, each against the
 order-confidence threshold, the other rules as the shipped card has them:
 - the edge rule's step (trusted_single_shot drops a pixel more than STEP mm from a neighbour; inf: no
   rule);
@@ -20,6 +21,7 @@ import numpy as np
 
 from fpp_nodes.core.model import DepthModel, default_model_path
 from fpp_nodes.core.reconstruct import QualityLimits
+from fpp_nodes.core.workflow import wrong_order_mm
 
 from .dataset import load_sample, sample_family, split_files
 from .export import FLOOR_GRID, MARGIN_GRID, ROUGHNESS_GRID, SURFACE_GRID, rule_counts, rule_rates
@@ -49,7 +51,13 @@ def main():
         model.max_roughness_mm,
         model.margin_px,
     )
-    shipped = dict(floors=(floor,), surfaces_px=(surface,), roughness_mm=(rough,), margins_px=(margin,))
+    shipped = dict(
+        floors=(floor,),
+        surfaces_px=(surface,),
+        roughness_mm=(rough,),
+        margins_px=(margin,),
+        wrong_order=wrong_order_mm(model.card_calibration),
+    )
 
     def count(**varied):
         counts.update(rule_counts(outputs, model.decoder, confidences=CONFIDENCES, **(shipped | varied)))
@@ -67,17 +75,20 @@ def main():
     table(
         "roughness limit", [(f"roughness {x:g} mm", (floor, surface, STEP, x, margin)) for x in ROUGHNESS_GRID], counts
     )
-    table("refusal margin", [(f"margin {k} px", (floor, surface, STEP, rough, k)) for k in MARGIN_GRID], counts)
+    table("refusal margin", [(f"margin {k} px", (floor, surface, STEP, rough, k)) for k in MARGIN_GRID], counts, True)
 
 
-def table(title: str, columns: list, counts: dict) -> None:
-    print(f"\n{title}\n{'confidence':>10} " + " ".join(f"{name:>16}" for name, _ in columns))
+def table(title: str, columns: list, counts: dict, orders: bool = False) -> None:
+    width = 24 if orders else 16
+    print(f"\n{title}\n{'confidence':>10} " + " ".join(f"{name:>{width}}" for name, _ in columns))
     for c in CONFIDENCES:
         cells = []
         for _, (floor, surface, step, rough, margin) in columns:
             r = rule_rates(counts[floor, surface, c, step, rough, margin])
-            cells.append(f"{r['coverage']:7.1%} {r['silent_errors']:7.2%}")
-        print(f"{c:>10} " + " ".join(f"{cell:>16}" for cell in cells))
+            cells.append(
+                f"{r['coverage']:7.1%} {r['silent_errors']:7.2%}" + (f" {r['wrong_orders']:7.3%}" if orders else "")
+            )
+        print(f"{c:>10} " + " ".join(f"{cell:>{width}}" for cell in cells))
 
 
 if __name__ == "__main__":
