@@ -130,7 +130,8 @@ class CnnDepth(Node):
             try:
                 self._publish(*frame)
             except Exception as e:  # a bug must not stop the thread: say so and go on with the next frame
-                self.health.report("frames failed", f"decoding failed: {type(e).__name__}: {e}")
+                if self.context.ok():  # not a publish that lost the race with shutting down
+                    self.health.report("frames failed", f"decoding failed: {type(e).__name__}: {e}")
             finally:
                 self.decoding.task_done()
 
