@@ -68,11 +68,8 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     models.append(("multi-shot (the label)", None))  # what all the sequence's images measure: the reference
     held_out = set(info.get("held_out_families", []))
     wrong_order = wrong_order_mm(calibration)
-    errors, orders, sure = (
-        {},
-        {},
-        {},
-    )  # (family, model) -> ErrorTotals against the exact depth; [confidence sum, pixels]
+    # (family, model) -> ErrorTotals against the exact depth (over 1 mm; over wrong_order); [confidence sum, pixels]
+    errors, orders, sure = {}, {}, {}
     for f in split_files(data, split)[: limit or None]:
         family = sample_family(f, info.get("scene", "?"))
         image, label, truth = load_sample(f)
