@@ -248,6 +248,8 @@ class CompositeDecoder:
     Depth is NaN where a pixel does not keep its order, below min_confidence, where the image shows
     no fringes and where its codes name an order outside the working range (the nearest order inside
     would be wrong): the decoder never adopts an order a pixel's own code did not give.
+    outside_range: after each call, the share of the pixels with fringes whose codes named no order
+    of the working range (a scene too near or too far, or codes too noisy to tell).
     """
 
     def __init__(self, calibration: Calibration, min_surface_px: int = 0):
@@ -366,6 +368,8 @@ class CompositeDecoder:
         if fringes is None:
             fringes = np.ones(carrier.shape, bool)
         ordered = fringes & np.isfinite(own)  # own is NaN where the codes name an order out of range
+        shown = np.count_nonzero(fringes)
+        self.outside_range = (shown - np.count_nonzero(ordered)) / max(shown, 1)
         local = np.where(ordered, own, np.float32(0))
         for _ in range(2):  # the order nearest the neighbourhood's median phase
             local = carrier + two_pi * np.rint((self.median(local) - carrier) / two_pi)

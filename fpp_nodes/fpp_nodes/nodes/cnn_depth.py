@@ -7,17 +7,17 @@ the paper's networks; a calibration whose pattern set differs stops the node at 
 the newest frame (KEEP_LAST 1): under load older frames are dropped, never queued. Publishes
 depth/image (32FC1, metres, NaN where the image shows no usable fringes: shadows, dark or saturated
 areas), depth/camera_info and points (organized PointCloud2, metres), with the image's header, and
-its health on /diagnostics. A phase-aware model also gives confidence/image (32FC1, 0-1: for the
-composite model the share of the pixels around it, and of its whole surface, whose codes give the
-order chosen there, the lesser of the two; for the paper-pattern phase model the probability that
-the order is right; depth is NaN below
-the threshold its card holds, and within its card's margin of a pixel refused so, both chosen on
-validation data). A frame of the wrong size or encoding is
-rejected and counted; a missing, corrupt or mismatched model stops the node at start. Parameters:
-model (path; empty = the shipped default), providers (CPUExecutionProvider; CUDA where present),
-threads (onnxruntime intra-op threads), min_confidence (negative: the model card's), calibration
-(the rig's: a composite model's phases become depth through it, whatever rig trained the network;
-intrinsics for the cloud).
+its health on /diagnostics (for the composite model also the share of the pixels with fringes whose
+codes name no order of the calibration's working range, a warning when most do). A phase-aware model
+also gives confidence/image (32FC1, 0-1: for the composite model the share of the pixels around it,
+and of its whole surface, whose codes give the order chosen there, the lesser of the two; for the
+paper-pattern phase model the probability that the order is right; depth is NaN below the threshold
+its card holds, and within its card's margin of a pixel refused so, both chosen on validation data).
+A frame of the wrong size or encoding is rejected and counted; a missing, corrupt or mismatched
+model stops the node at start. Parameters: model (path; empty = the shipped default), providers
+(CPUExecutionProvider; CUDA where present), threads (onnxruntime intra-op threads), min_confidence
+(negative: the model card's), calibration (the rig's: a composite model's phases become depth
+through it, whatever rig trained the network; intrinsics for the cloud).
 
 Two frames are in hand at once: the network runs on a frame in the subscription's callback while a
 thread of the node's own decodes the frame before and publishes it, so on 2 cores the network takes
@@ -42,6 +42,8 @@ from ..core.model import DepthModel, ModelError, default_model_path
 from .common import declare, describe, follow_calibration, load_calibration, run
 from .health import Health
 
+# more than this share of the fringes naming no order of the working range: the scene is outside it
+MOSTLY_OUTSIDE = 0.5
 NEWEST_ONLY = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
 
 
@@ -155,6 +157,16 @@ class CnnDepth(Node):
         self.health.usable_pixels(np.count_nonzero(np.isfinite(usable)) / usable.size, "frames without fringes")
         if confidence is not None:
             self.health.fact("depth given (last)", f"{np.count_nonzero(np.isfinite(depth_mm)) / depth_mm.size:.1%}")
+        outside = getattr(self.model.decoder, "outside_range", None)  # a composite model's
+        if outside is not None:
+            self.health.fact("fringes outside the working range (last)", f"{outside:.1%}")
+            if outside > MOSTLY_OUTSIDE:
+                near, far = self.calibration.working_range_mm
+                self.health.report(
+                    "frames outside the working range",
+                    f"the codes of {outside:.0%} of the pixels with fringes name no order of the working "
+                    f"range {near:g}-{far:g} mm: is the scene nearer or farther?",
+                )
 
     def destroy_node(self):
         if self.decoder_thread.is_alive():

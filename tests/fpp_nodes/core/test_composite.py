@@ -116,6 +116,7 @@ def test_a_surface_outside_the_working_range_is_nan_not_the_nearest_order_inside
         renderer = SceneRenderer(rig, plane_scene(rig, z))
         depth, confidence = decoder(as_network_output(*exact_phases(renderer, patterns)), 0.5)
         assert np.isnan(depth).all() and np.nanmax(confidence) == 0, z
+        assert decoder.outside_range == 1.0  # what cnn_depth's diagnostics say
     scene = plane_scene(rig, SURFACE_DEPTH_MM[0], tilt_x_deg=20.0)
     renderer = SceneRenderer(rig, scene)
     depth, _ = decoder(as_network_output(*exact_phases(renderer, patterns)), 0.5)
@@ -123,6 +124,8 @@ def test_a_surface_outside_the_working_range_is_nan_not_the_nearest_order_inside
     assert np.abs(depth - scene.depth_mm)[given].max() < 0.05
     assert not given[scene.depth_mm < SURFACE_DEPTH_MM[0] - 10].any()
     assert given[scene.depth_mm > SURFACE_DEPTH_MM[0] + 5].mean() > 0.97
+    near = SURFACE_DEPTH_MM[0]  # pixels a little before the range keep an order (half an order to spare)
+    assert np.mean(scene.depth_mm < near - 10) <= decoder.outside_range <= np.mean(scene.depth_mm < near)
 
 
 def test_a_surface_outvotes_scattered_order_errors_and_a_code_of_noise_is_nan(rig, patterns, calibration):

@@ -141,10 +141,13 @@ def test_bad_frames_into_the_single_shot_path(ros_graph):
     ), procs.logs()
     time.sleep(1.0)
     inputs = {kind: msg for kind, (msg, _) in bad_frames(good).items()}
+    rig = Rig()
+    far = render(rig, make_scene(rig, "plane", depth_mm=1420), patterns, np.random.default_rng(3)).images
     inputs.update(
         {
             "dark": numpy_to_image(np.zeros_like(good)),
             "saturated": numpy_to_image(np.full_like(good, 255)),
+            "beyond the working range": numpy_to_image(far[patterns.single_shot_index]),  # 1000-1350 mm
             "good": numpy_to_image(good),
         }
     )
@@ -152,10 +155,11 @@ def test_bad_frames_into_the_single_shot_path(ros_graph):
         msg.header = header_at(n * 1_000_000_000, Frames.CAMERA)
         camera_pub.publish(msg)  # one at a time: the node keeps only the newest frame
         assert robot.spin_until(lambda: diagnostics.value("/cnn/cnn_depth", "frames in") == str(n), 60), kind
-    assert robot.spin_until(lambda: len(depths) == 3, 60)
-    assert [stamp_ns(d.header.stamp) // 1_000_000_000 for d in depths] == [6, 7, 8]  # dark, saturated, good
-    dark, saturated, fine = (image_to_numpy(d) for d in depths)
+    assert robot.spin_until(lambda: len(depths) == 4, 60)
+    assert [stamp_ns(d.header.stamp) // 1_000_000_000 for d in depths] == [6, 7, 8, 9]  # dark, ..., good
+    dark, saturated, beyond, fine = (image_to_numpy(d) for d in depths)
     assert np.isnan(dark).all() and np.isnan(saturated).all()  # no fringes, no made-up surface
+    assert np.isnan(beyond).all()  # not the nearest order inside the working range
     truth_m = np.where(capture.valid, capture.depth_mm / 1000, np.nan)
     ok = np.isfinite(fine) & np.isfinite(truth_m)
     assert ok.sum() > SCULPTURE_COVERAGE * np.isfinite(truth_m).sum()
@@ -173,6 +177,8 @@ def test_bad_frames_into_the_single_shot_path(ros_graph):
     robot.spin_until(lambda: diagnostics.value("/cnn/cnn_depth", "frames without fringes") == "2", 60)
     assert diagnostics.value("/cnn/cnn_depth", "frames rejected") == "5"
     assert diagnostics.value("/cnn/cnn_depth", "frames without fringes") == "2"
+    assert diagnostics.value("/cnn/cnn_depth", "frames outside the working range") == "1"
+    assert any("working range 1000-1350 mm" in m for m in diagnostics.said["/cnn/cnn_depth"])
     assert diagnostics.value("/cnn/cnn_depth", "model sha256", "") != ""
 
 
