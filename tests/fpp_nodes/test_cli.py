@@ -194,6 +194,12 @@ def test_reconstruct_with_the_single_shot_network(tmp_path):
             assert ok.sum() > 0.95 * lit.sum() and np.sqrt(np.mean((depth - truth)[ok] ** 2)) < 0.6
         else:
             assert np.count_nonzero(np.abs(depth - truth)[ok] > 1.0) <= 0.01 * max(ok.sum(), 1)
+            assert "working range" not in r.stderr
+    # a plane beyond the working range (1000-1350 mm): no depth, and the reason
+    assert fpp("simulate", "--scene", "plane", "--depth", 1420, "--out", tmp_path / "scene").returncode == 0
+    r = cnn(default_calibration_path(), out="far")
+    assert r.returncode == 0 and np.isnan(np.load(tmp_path / "far" / "depth_mm.npy")).all()
+    assert "no order of the working range 1000-1350 mm" in r.stderr, r.stderr
     r = cnn(default_calibration_path(), "--model", tmp_path / "missing.onnx")
     assert r.returncode == 2 and "does not exist" in r.stderr
 

@@ -27,6 +27,8 @@ MIN_MODULATION = 0.05  # as the multi-shot path's QualityLimits: a fraction of f
 # A composite network sees a rig's fringes at the period it was trained on: the image is resampled where
 # the periods differ by more than this (surfaces tilted by 20 degrees in training already change it by 6%)
 PERIOD_TOLERANCE = 0.05
+# more than this share of the pixels with fringes naming no order of the working range: the scene is outside it
+MOSTLY_OUTSIDE = 0.5
 
 
 class ModelError(ValueError):
@@ -158,6 +160,18 @@ class DepthModel:
         self.calibration, self.size, self.scale = calibration, size, scale
         # what the network reads: the image at 1/downsample, or resampled to the trained fringe period
         self.input_size = tuple(round(n * scale) // self.downsample for n in size)
+
+    def range_warning(self) -> str | None:
+        """After a frame of a composite model: what to say where most of its pixels with fringes named no
+        order of the working range (CompositeDecoder.outside_range); None otherwise."""
+        outside = getattr(self.decoder, "outside_range", 0.0)
+        if outside <= MOSTLY_OUTSIDE:
+            return None
+        near, far = (self.calibration or self.card_calibration).working_range_mm
+        return (
+            f"the codes of {outside:.0%} of the pixels with fringes name no order of the working range "
+            f"{near:g}-{far:g} mm: is the scene nearer or farther?"
+        )
 
     def check(self, image: np.ndarray) -> None:
         if image.ndim != 2 or (image.shape[1], image.shape[0]) != self.size:

@@ -42,8 +42,6 @@ from ..core.model import DepthModel, ModelError, default_model_path
 from .common import declare, describe, follow_calibration, load_calibration, run
 from .health import Health
 
-# more than this share of the fringes naming no order of the working range: the scene is outside it
-MOSTLY_OUTSIDE = 0.5
 NEWEST_ONLY = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
 
 
@@ -160,13 +158,8 @@ class CnnDepth(Node):
         outside = getattr(self.model.decoder, "outside_range", None)  # a composite model's
         if outside is not None:
             self.health.fact("fringes outside the working range (last)", f"{outside:.1%}")
-            if outside > MOSTLY_OUTSIDE:
-                near, far = self.calibration.working_range_mm
-                self.health.report(
-                    "frames outside the working range",
-                    f"the codes of {outside:.0%} of the pixels with fringes name no order of the working "
-                    f"range {near:g}-{far:g} mm: is the scene nearer or farther?",
-                )
+        if warning := self.model.range_warning():
+            self.health.report("frames outside the working range", warning)
 
     def destroy_node(self):
         if self.decoder_thread.is_alive():
