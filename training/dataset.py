@@ -224,7 +224,9 @@ def write_bag_set(
     """A data set from a recorded bag of full fringe sequences (the path of a user with real hardware:
     record, label with multi-shot, train). Frames are assembled into sequences as capture_sequence
     does; each complete sequence becomes a sample whose label is its multi-shot reconstruction. There
-    is no exact depth for a real scene: truth is all NaN. Returns the number of samples."""
+    is no exact depth for a real scene: truth is all NaN. Further bags add to the set (each to its
+    split), which stays one rig's: a bag of another calibration is an error. Returns the number of
+    samples the bag gave."""
     from fpp_msgs_py import image_to_numpy, stamp_ns  # rosbags' messages have sensor_msgs' fields
     from fpp_nodes.bag import TYPESTORE, read_bag
     from fpp_nodes.core.sequence import SequenceAssembler, ShownPatterns
@@ -235,6 +237,14 @@ def write_bag_set(
         if calibration_path is None and recording.calibration_yaml
         else Calibration.load(calibration_path or default_calibration_path())
     )
+    info_path = Path(out) / "dataset.yaml"
+    info = yaml.safe_load(info_path.read_text()) if info_path.exists() else {}
+    as_stored = yaml.safe_load(yaml.safe_dump(calibration.to_dict()))
+    if info and (info.get("set") != "bag" or info.get("calibration") != as_stored):
+        raise ValueError(
+            f"{out} holds a set of another rig or source than {bag}'s (a data set is one rig's): "
+            "give another --out, or the calibration of that set (--calibration)"
+        )
     patterns = calibration.patterns
     psp, assembler = PspReconstructor(calibration), SequenceAssembler(patterns.count)
     shown, count = ShownPatterns(patterns, int(max_time_offset_s * 1e9)), 0
@@ -264,18 +274,20 @@ def write_bag_set(
                 **composite,
             )
             count += 1
-    (Path(out) / "dataset.yaml").write_text(
+    bags = info.get("bags", {})  # split -> the bags its samples came from
+    bags[split] = sorted({*bags.get(split, []), str(bag)})
+    info_path.write_text(
         yaml.safe_dump(
             {
                 "format": "fpp_dataset",
                 "version": FORMAT_VERSION,
                 "set": "bag",
-                "bag": str(bag),
-                "counts": {split: count},
+                "bags": bags,
+                "counts": {s: len(split_files(out, s)) for s in SPLITS if (Path(out) / s).is_dir()},
                 "input": patterns.names()[patterns.single_shot_index],
                 "label": "multi-shot PSP depth",
                 "truth": "none (a recorded scene): all NaN",
-                "sequences_dropped": assembler.stats.dropped,
+                "sequences_dropped": info.get("sequences_dropped", 0) + assembler.stats.dropped,
                 "calibration": calibration.to_dict(),
             },
             sort_keys=False,

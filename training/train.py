@@ -22,9 +22,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import onnx
 import torch
 import torch.distributed as dist
 import yaml
+from onnx import numpy_helper
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, Dataset, DistributedSampler
 from tqdm import tqdm
@@ -64,7 +66,7 @@ class TrainConfig:
     limit: int = 0  # use only the first N training samples (0: all)
     crop: int = 0  # train on random square crops of this size (0: whole images); composite only
     workers: int = 0  # data-loading processes (worth it beside a GPU)
-    init: str = ""  # start from this checkpoint's weights (same architecture; optimizer and epochs afresh)
+    init: str = ""  # start from these weights: a checkpoint, or a model file such as the shipped one (initial_weights)
     seed: int = 0
 
     def __post_init__(self):
@@ -336,6 +338,33 @@ def load_checkpoint(path) -> dict:
     return ckpt
 
 
+def load_initial_weights(model: torch.nn.Module, path, network: str) -> None:
+    """model's weights from where a run starts (optimizer and epochs afresh): a checkpoint, or an
+    exported model (.onnx, the shipped one included: its initializers keep the network's names), so
+    recordings of a rig can fine-tune the shipped network without its checkpoint. network: what the
+    run trains, for the error where path holds another."""
+    if Path(path).suffix != ".onnx":
+        weights = load_checkpoint(path)["model"]
+    else:
+        try:
+            graph = onnx.load(str(path)).graph
+        except Exception as e:
+            raise ValueError(f"cannot load model {path}: {type(e).__name__}: {str(e).splitlines()[0]}") from None
+        # export writes a composite network inside HalfResolution (net.), cut before its last pixel shuffle
+        weights = {
+            t.name.removeprefix("net."): torch.from_numpy(numpy_helper.to_array(t).copy()) for t in graph.initializer
+        }
+    expected = model.state_dict()
+    wrong = [k for k in expected if k not in weights or weights[k].shape != expected[k].shape]
+    if wrong:
+        raise ValueError(
+            f"{path} holds another network than this run's ({network}): nothing or another shape for "
+            + ", ".join(wrong[:3])
+            + (" ..." if len(wrong) > 3 else "")
+        )
+    model.load_state_dict({k: weights[k] for k in expected})
+
+
 def model_from_checkpoint(ckpt: dict):
     cfg = TrainConfig(**{k: v for k, v in ckpt["config"].items() if k in {f.name for f in fields(TrainConfig)}})
     model = build(cfg.arch, cfg.width, cfg.dropout, (cfg.depth_offset_mm, cfg.depth_scale_mm))
@@ -419,7 +448,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, factor=0.5, patience=config.patience)
     history, start_epoch, seconds = [], 0, 0.0
     if config.init and not resume:
-        model.load_state_dict(load_checkpoint(config.init)["model"])
+        load_initial_weights(model, config.init, f"{config.arch}, width {config.width}")
     if resume:
         ckpt = load_checkpoint(resume)
         model.load_state_dict(ckpt["model"])

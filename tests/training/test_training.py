@@ -299,6 +299,13 @@ def test_a_data_set_from_a_recorded_bag(tmp_path, capsys, near_rig, near_calibra
     assert not np.isfinite(truth).any() and ok.sum() > 0.9 * capture.valid.sum()
     assert np.sqrt(np.mean((label - capture.depth_mm)[ok] ** 2)) < 0.06
     assert write_bag_set(tmp_path / "bag", tmp_path / "set", split="test") == 1
+    info = yaml.safe_load((tmp_path / "set" / "dataset.yaml").read_text())
+    assert info["counts"] == {"train": 1, "test": 1} and info["bags"] == {
+        "train": [str(tmp_path / "bag")],
+        "test": [str(tmp_path / "bag")],
+    }
+    with pytest.raises(ValueError, match="another rig"):  # one set, one rig
+        write_bag_set(tmp_path / "bag", tmp_path / "set", calibration_path=default_calibration_path())
     capsys.readouterr()
     family_table(str(tmp_path / "set"), [default_model_path()])
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("?"))
@@ -362,6 +369,12 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     assert card["output"]["name"] == "fringe_phases" and card["input"]["content"] == "single-shot composite"
     assert card["output"]["pixel_shuffle"] == 2  # the ONNX file ends before it (parity checked through it)
     assert card["calibration"]["working_range_mm"] == [1000.0, 1350.0] and "val" in card["decoding"]["chosen_on"]
+    # a rig's recordings fine-tune from an exported model, the shipped one's way (no checkpoint shipped)
+    train(replace(config, out=str(tmp_path / "tuned"), lr=1e-12, init=str(tmp_path / "m.onnx")))
+    tuned = load_checkpoint(tmp_path / "tuned" / "last.pt")["model"]
+    assert all(torch.allclose(first[k], tuned[k], atol=1e-6) for k in first)
+    with pytest.raises(ValueError, match="another network than this run's \\(composite, width 8\\)"):
+        train(replace(config, out=str(tmp_path / "wider"), width=8, init=str(tmp_path / "m.onnx")))
     model = DepthModel(tmp_path / "m.onnx", threads=1)
     assert model.reads == "composite"
     # the four rules chosen together on validation, and the ones the model runs with
