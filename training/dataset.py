@@ -16,7 +16,7 @@ On disk (a folder per set and split, one file per sample):
                                        truth  float32 (H, W) exact depth in mm, NaN = shadow
      families/surface/composite: phase  float32 (H, W)     multi-shot absolute phase, NaN invalid
                                  fringe float16 (2, H, W)  its numerator and denominator
-                                 family str                the scene family
+                                 family str                the scene family (a bag's sample: the bag's name)
                  composite (and bags): code   float16 (2 x codes, H, W)  the code gratings (phase_targets)
 """
 
@@ -271,6 +271,7 @@ def write_bag_set(
                 input=sequence.images[patterns.single_shot_index],
                 label=rec.depth_mm.astype(np.float32),
                 truth=np.full(rec.depth_mm.shape, np.nan, np.float32),
+                family=Path(bag).name,  # a recorded set's families are its recordings
                 **composite,
             )
             count += 1

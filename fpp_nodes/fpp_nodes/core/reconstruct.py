@@ -394,13 +394,7 @@ def order_surfaces(absolute: np.ndarray, fringes: np.ndarray) -> tuple[np.ndarra
     condition, which a continuous surface meets: the orders step as the wrapped phase does). A pixel
     beside a change of more (a depth step, or an order that disagrees with its neighbour's) is on
     none: label 0."""
-    inside = fringes.copy()
-    across = np.abs(np.diff(absolute, axis=1)) >= np.pi
-    down = np.abs(np.diff(absolute, axis=0)) >= np.pi
-    inside[:, 1:] &= ~across
-    inside[:, :-1] &= ~across
-    inside[1:] &= ~down
-    inside[:-1] &= ~down
+    inside = fringes & drop_flying_pixels(absolute, np.pi)
     count, labels = cv2.connectedComponents(inside.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
     return labels, np.bincount(labels.ravel(), minlength=count)
 
