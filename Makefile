@@ -61,6 +61,13 @@ SOAK_MINUTES ?= 10
 soak: setup
 	bash -c 'source scripts/env.bash && python scripts/soak.py --minutes $(SOAK_MINUTES)'
 
+# The real-rig training loop on the simulated rig: record bags, label them with the multi-shot path,
+# fine-tune the shipped network from its ONNX file, export, compare (docs/real-rig.md); out/from-bags.
+.PHONY: from-bags
+from-bags: setup
+	rm -rf out/from-bags
+	bash scripts/train_from_bags.sh out/from-bags
+
 # The paper's UNet (fpp_nodes/fpp_nodes/data/models/unet.onnx + card), shipped for the reproduction and
 # Table 1: the data set the paper's size, then a small UNet at half resolution, DEFAULT_EPOCHS on the CPU.
 DEFAULT_EPOCHS ?= 80

@@ -90,9 +90,10 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
                 totals[0], totals[1] = totals[0] + float(known.sum()), totals[1] + known.size
     names = [n for n, _ in models]
     families = sorted({f for f, _ in errors}, key=lambda f: (f in held_out, f))
+    first = max(14, *(len(f) + 3 for f in families))  # a recorded set's families are its bags' names
     print(f"{split} split of {data}, by scene family (* held out of training and validation)")
-    print(f"{'family':14}" + "".join(f"{n[:36]:>38}" for n in names))
-    print(f"{'':14}" + "".join(f"{'RMSE mm  >1mm  orders   cover  conf':>38}" for _ in names))
+    print(f"{'family':{first}}" + "".join(f"{n[:36]:>38}" for n in names))
+    print(f"{'':{first}}" + "".join(f"{'RMSE mm  >1mm  orders   cover  conf':>38}" for _ in names))
     for family in families:
         cells = []
         for n in names:
@@ -103,7 +104,7 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
                 f"{rmse} {e.share_over:6.2%} {wrong:6.3%} {e.coverage:7.1%} "
                 + (f"{conf / known:5.2f}" if known else f"{'-':>5}")
             )
-        print(f"{family + (' *' if family in held_out else ''):14}" + "".join(f"{c:>38}" for c in cells))
+        print(f"{family + (' *' if family in held_out else ''):{first}}" + "".join(f"{c:>38}" for c in cells))
     print(
         "RMSE against the exact depth (a recorded set's: the multi-shot label) over the pixels given a depth; "
         f">1mm: share of those off by more than {SILENT_ERROR_MM:g} mm (silent errors); orders: off by more than "
