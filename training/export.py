@@ -18,10 +18,7 @@ from __future__ import annotations
 import argparse
 import copy
 import hashlib
-import multiprocessing
-import os
 import warnings
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -34,7 +31,6 @@ import yaml
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.model import (
     MIN_MODULATION,
-    ROUGHNESS_WINDOW,
     PhaseOrderDecoder,
     decoded_fringes,
     local_depth,
@@ -63,9 +59,7 @@ WRONG_ORDER_BUDGET = 1e-4  # ... and off by more than half a fringe order (wrong
 CONFIDENCE_GRID = (0.0, 0.25, 0.5, 0.6, 0.7, 0.75, 0.8, 0.82, 0.84, 0.86, 0.88, 0.9, 0.92, 0.95, 0.98, 0.99, 0.999)
 FLOOR_GRID = (0.01, 0.02, 0.03, 0.05)  # the fringe mask's floor: the network's modulation, of full scale
 SURFACE_GRID = (0, 500, 2000)  # the composite decoder's smallest surface (pixels) whose vote counts
-# the composite's roughness rule (mm; inf: none)
-ROUGHNESS_GRID = (0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, np.inf)
-WINDOW_GRID = (ROUGHNESS_WINDOW, 11, 13)  # pixels: the window of the depth's mean and roughness (local_depth)
+ROUGHNESS_GRID = (0.15, 0.2, 0.25, 0.3, 0.4, 0.5, np.inf)  # the composite's roughness rule (mm; inf: none)
 MARGIN_GRID = (0, 1, 2, 3)  # pixels around a refused pixel that are refused too (model.refusal_margin)
 OUTPUTS = {"phase": "fringe_order", "composite": "fringe_phases"}  # other architectures: depth_mm
 
@@ -80,13 +74,12 @@ def rule_counts(
     roughness_mm=(np.inf,),
     margins_px=(0,),
     wrong_order=np.inf,
-    windows_px=(ROUGHNESS_WINDOW,),
 ) -> dict:
-    """(floor, surface px, confidence, step, window px, roughness, margin px) -> {family: [output pixels, silent
+    """(floor, surface px, confidence, step, roughness, margin px) -> {family: [output pixels, silent
     errors (off the exact depth by > 1 mm), exact pixels, wrong orders (off by more than wrong_order
     mm)]} over samples of (image, exact depth, network outputs, family), decoded as DepthModel.infer
     does with that fringe-mask floor, smallest surface (a composite decoder's min_surface_px),
-    order-confidence threshold, edge-rule step, window, roughness limit and refusal margin."""
+    order-confidence threshold, edge-rule step, roughness limit and refusal margin."""
     counts = {}
     for image, truth, out, family in samples:
         exact = np.isfinite(truth)
@@ -100,28 +93,27 @@ def rule_counts(
                 kept, confidence = decode(out, 0.0, fringes)
                 for s in steps_mm:
                     shown = trusted_single_shot(kept.copy(), image, max_depth_step_mm=s, fringes=fringes)
-                    for w in windows_px:
-                        mean, roughness = local_depth(shown, w)
-                        for r in roughness_mm:
-                            if np.isfinite(r):  # a roughness limit keeps the window's mean
-                                smooth, error = roughness <= r, np.abs(mean - truth)
-                            else:
-                                smooth, error = np.isfinite(shown), np.abs(shown - truth)
-                            wrong, guessed = exact & (error > 1.0), exact & (error > wrong_order)
-                            for c in confidences:
-                                given = smooth & (confidence >= c)
-                                if max(margins_px) > 0:  # how far each pixel is from a refused one (refusal_margin)
-                                    refused = fringes & ~given
-                                    far = cv2.distanceTransform((~refused).view(np.uint8), cv2.DIST_C, 3)
-                                for k in margins_px:
-                                    ok = given & (far > k) if k else given
-                                    n = counts.setdefault((m, px, c, s, w, r, k), {}).setdefault(family, np.zeros(4))
-                                    n += (
-                                        ok.sum(),
-                                        np.count_nonzero(wrong & ok),
-                                        exact.sum(),
-                                        np.count_nonzero(guessed & ok),
-                                    )
+                    mean, roughness = local_depth(shown)
+                    for r in roughness_mm:
+                        if np.isfinite(r):  # a roughness limit keeps the window's mean
+                            smooth, error = roughness <= r, np.abs(mean - truth)
+                        else:
+                            smooth, error = np.isfinite(shown), np.abs(shown - truth)
+                        wrong, guessed = exact & (error > 1.0), exact & (error > wrong_order)
+                        for c in confidences:
+                            given = smooth & (confidence >= c)
+                            if max(margins_px) > 0:  # how far each pixel is from a refused one (refusal_margin)
+                                refused = fringes & ~given
+                                far = cv2.distanceTransform((~refused).view(np.uint8), cv2.DIST_C, 3)
+                            for k in margins_px:
+                                ok = given & (far > k) if k else given
+                                n = counts.setdefault((m, px, c, s, r, k), {}).setdefault(family, np.zeros(4))
+                                n += (
+                                    ok.sum(),
+                                    np.count_nonzero(wrong & ok),
+                                    exact.sum(),
+                                    np.count_nonzero(guessed & ok),
+                                )
     return counts
 
 
@@ -147,8 +139,15 @@ def rule_name(floor: float, surface_px: int, roughness_mm: float, margin_px: int
 
 
 @torch.no_grad()
-def validation_counts(files, model, decoder, grids: tuple) -> dict:
-    """rule_counts (with grids: its arguments after the decoder) of the network's outputs for files."""
+def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: int = 200) -> dict:
+    """The fringe mask's floor, the smallest surface, the roughness limit and the refusal margin
+    (composite decoders) and the order-confidence threshold that give the most coverage while the
+    silent errors (output pixels off the exact depth, in a recorded set the multi-shot label, by more
+    than 1 mm) stay within SILENT_ERROR_BUDGET over the validation split and within SILENT_ERROR_LIMIT
+    in each of its scene families, and the wrong orders within WRONG_ORDER_BUDGET: chosen on
+    validation data, never on the test set."""
+
+    files = split_files(data, "val")[:limit]
 
     def samples():
         for f in files:
@@ -156,26 +155,12 @@ def validation_counts(files, model, decoder, grids: tuple) -> dict:
             out = predict(model, torch.from_numpy(network_input(image))[None, None])[0].numpy()
             yield image, reference_depth(label, truth), out, sample_family(f)
 
-    return rule_counts(samples(), decoder, *grids)
-
-
-def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: int = 200) -> dict:
-    """The fringe mask's floor, the smallest surface, the window and roughness limit of the depth's
-    mean and the refusal margin (composite decoders) and the order-confidence threshold that give the
-    most coverage while the silent errors (output pixels off the exact depth, in a recorded set the
-    multi-shot label, by more than 1 mm) stay within SILENT_ERROR_BUDGET over the validation split and
-    within SILENT_ERROR_LIMIT in each of its scene families, and the wrong orders within
-    WRONG_ORDER_BUDGET: chosen on validation data, never on the test set. The scenes are counted in a
-    process per core (counts add up)."""
-    files = split_files(data, "val")[:limit]
     composite = hasattr(decoder, "min_surface_px")
-    surfaces, roughness, margins, windows = (
-        (SURFACE_GRID, ROUGHNESS_GRID, MARGIN_GRID, WINDOW_GRID)
-        if composite
-        else ((0,), (np.inf,), (0,), (ROUGHNESS_WINDOW,))
-    )
+    surfaces, roughness, margins = (SURFACE_GRID, ROUGHNESS_GRID, MARGIN_GRID) if composite else ((0,), (np.inf,), (0,))
     wrong_order = wrong_order_mm(calibration)
-    grids = (
+    counts = rule_counts(
+        samples(),
+        decoder,
         FLOOR_GRID,
         CONFIDENCE_GRID,
         (QualityLimits.max_depth_step_mm,),
@@ -183,21 +168,8 @@ def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: 
         roughness,
         margins,
         wrong_order,
-        windows,
     )
-    workers = max(min(os.cpu_count() or 1, len(files)), 1)
-    if workers == 1:
-        counts = validation_counts(files, model, decoder, grids)
-    else:
-        counts = {}
-        spawn = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(workers, spawn, initializer=torch.set_num_threads, initargs=(1,)) as pool:
-            shares = [files[i::workers] for i in range(workers)]
-            for part in pool.map(validation_counts, shares, [model] * workers, [decoder] * workers, [grids] * workers):
-                for key, by_family in part.items():
-                    for family, n in by_family.items():
-                        counts.setdefault(key, {}).setdefault(family, np.zeros(4))[...] += n
-    rows = {(m, px, c, w, r, k): rule_rates(n) for (m, px, c, _, w, r, k), n in counts.items()}
+    rows = {(m, px, c, r, k): rule_rates(n) for (m, px, c, _, r, k), n in counts.items()}
     good = [
         key
         for key, r in rows.items()
@@ -206,24 +178,23 @@ def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: 
         and r["wrong_orders"] <= WRONG_ORDER_BUDGET
         and r["coverage"] > 0
     ]
-    # ties: the surer, the smaller window, the smoother
-    floor, surface, confidence, window, rough, margin = (
-        max(good, key=lambda k: (rows[k]["coverage"], k[2], -k[3], -k[4]))
+    floor, surface, confidence, rough, margin = (
+        max(good, key=lambda k: (rows[k]["coverage"], k[2], -k[3]))
         if good
-        else (MIN_MODULATION, surfaces[-1], CONFIDENCE_GRID[-1], windows[0], roughness[0], margins[-1])
+        else (MIN_MODULATION, surfaces[-1], CONFIDENCE_GRID[-1], roughness[0], margins[-1])
     )
     chosen = {"min_confidence": confidence, "min_modulation": floor}
     if composite:
-        chosen |= {"min_surface_px": surface, "window_px": window, "max_roughness_mm": rough, "margin_px": margin}
+        chosen |= {"min_surface_px": surface, "max_roughness_mm": rough, "margin_px": margin}
     return chosen | {
         "chosen_on": f"{data} val, {len(files)} scenes",
         "silent_error_budget": SILENT_ERROR_BUDGET,
         "silent_error_limit_per_family": SILENT_ERROR_LIMIT,
         "wrong_order_budget": WRONG_ORDER_BUDGET,
         "wrong_order_mm": round(wrong_order, 2),
-        "validation": {  # at the chosen floor, smallest surface and window (all of them: megabytes of card)
+        "validation": {  # at the chosen floor and smallest surface (all of them: a megabyte of card)
             rule_name(floor, surface, r, k): {
-                str(c): {name: round(float(v), 6) for name, v in rows[floor, surface, c, window, r, k].items()}
+                str(c): {name: round(float(v), 6) for name, v in rows[floor, surface, c, r, k].items()}
                 for c in CONFIDENCE_GRID
             }
             for r in roughness

@@ -1,13 +1,12 @@
 """The single-shot path's pixel rules, re-checked on validation data: the shipped composite network on
 the composite set's validation split (never its test split). Each cell: coverage of the exact depth's
 pixels, and silent errors (output pixels off by more than 1 mm); in the margin's table also wrong
-orders (off by more than half a fringe order: wrong_order_mm). Six tables, each against the
+orders (off by more than half a fringe order: wrong_order_mm). Five tables, each against the
 order-confidence threshold, the other rules as the shipped card has them:
 - the edge rule's step (trusted_single_shot drops a pixel more than STEP mm from a neighbour; inf: no
   rule);
 - the fringe mask's floor (fringe_mask: the network's fringe modulation, a fraction of full scale);
 - the decoder's smallest surface whose vote counts (CompositeDecoder.min_surface_px);
-- the window of the depth's mean and roughness (local_depth), in pixels;
 - the roughness limit (trusted_single_shot drops a pixel whose neighbourhood's depth scatters more);
 - the refusal margin (refusal_margin drops the pixels this near a pixel refused where fringes show).
 
@@ -25,7 +24,7 @@ from fpp_nodes.core.reconstruct import QualityLimits
 from fpp_nodes.core.workflow import wrong_order_mm
 
 from .dataset import load_sample, sample_family, split_files
-from .export import FLOOR_GRID, MARGIN_GRID, ROUGHNESS_GRID, SURFACE_GRID, WINDOW_GRID, rule_counts, rule_rates
+from .export import FLOOR_GRID, MARGIN_GRID, ROUGHNESS_GRID, SURFACE_GRID, rule_counts, rule_rates
 
 CONFIDENCES = (0.5, 0.7, 0.75, 0.8, 0.82, 0.84, 0.86, 0.88, 0.9, 0.92, 0.95)
 STEPS_MM = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, np.inf)
@@ -46,17 +45,15 @@ def main():
     for f in files:
         image, _, truth = load_sample(f)
         outputs.append((image, truth, model.output_channels(model.outputs(image)), sample_family(f)))
-    floor, surface, window, rough, margin = (
+    floor, surface, rough, margin = (
         model.min_modulation,
         model.decoder.min_surface_px,
-        model.window_px,
         model.max_roughness_mm,
         model.margin_px,
     )
     shipped = dict(
         floors=(floor,),
         surfaces_px=(surface,),
-        windows_px=(window,),
         roughness_mm=(rough,),
         margins_px=(margin,),
         wrong_order=wrong_order_mm(model.card_calibration),
@@ -69,21 +66,16 @@ def main():
     count(steps_mm=STEPS_MM)
     count(floors=FLOOR_GRID)
     count(surfaces_px=SURFACE_GRID)
-    count(windows_px=WINDOW_GRID)
     count(roughness_mm=ROUGHNESS_GRID)
     count(margins_px=MARGIN_GRID)
     print(f"{args.data} validation split, {len(files)} scenes; each cell: coverage, silent errors")
-    rules = (floor, surface, STEP, window, rough, margin)
-
-    def vary(i, value):  # the shipped rules with one changed
-        return rules[:i] + (value,) + rules[i + 1 :]
-
-    table("edge rule step", [(f"step {s:g} mm", vary(2, s)) for s in STEPS_MM], counts)
-    table("fringe mask floor", [(f"floor {m:g}", vary(0, m)) for m in FLOOR_GRID], counts)
-    table("smallest surface", [(f"surface {px} px", vary(1, px)) for px in SURFACE_GRID], counts)
-    table("window", [(f"window {w} px", vary(3, w)) for w in WINDOW_GRID], counts, True)
-    table("roughness limit", [(f"roughness {x:g} mm", vary(4, x)) for x in ROUGHNESS_GRID], counts)
-    table("refusal margin", [(f"margin {k} px", vary(5, k)) for k in MARGIN_GRID], counts, True)
+    table("edge rule step", [(f"step {s:g} mm", (floor, surface, s, rough, margin)) for s in STEPS_MM], counts)
+    table("fringe mask floor", [(f"floor {m:g}", (m, surface, STEP, rough, margin)) for m in FLOOR_GRID], counts)
+    table("smallest surface", [(f"surface {px} px", (floor, px, STEP, rough, margin)) for px in SURFACE_GRID], counts)
+    table(
+        "roughness limit", [(f"roughness {x:g} mm", (floor, surface, STEP, x, margin)) for x in ROUGHNESS_GRID], counts
+    )
+    table("refusal margin", [(f"margin {k} px", (floor, surface, STEP, rough, k)) for k in MARGIN_GRID], counts, True)
 
 
 def table(title: str, columns: list, counts: dict, orders: bool = False) -> None:
@@ -91,8 +83,8 @@ def table(title: str, columns: list, counts: dict, orders: bool = False) -> None
     print(f"\n{title}\n{'confidence':>10} " + " ".join(f"{name:>{width}}" for name, _ in columns))
     for c in CONFIDENCES:
         cells = []
-        for _, (floor, surface, step, window, rough, margin) in columns:
-            r = rule_rates(counts[floor, surface, c, step, window, rough, margin])
+        for _, (floor, surface, step, rough, margin) in columns:
+            r = rule_rates(counts[floor, surface, c, step, rough, margin])
             cells.append(
                 f"{r['coverage']:7.1%} {r['silent_errors']:7.2%}" + (f" {r['wrong_orders']:7.3%}" if orders else "")
             )

@@ -27,7 +27,6 @@ from training.export import (
     SILENT_ERROR_BUDGET,
     SILENT_ERROR_LIMIT,
     SURFACE_GRID,
-    WINDOW_GRID,
     WRONG_ORDER_BUDGET,
     HalfResolution,
     export,
@@ -383,7 +382,6 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     assert model.decoder.min_surface_px == card["decoding"]["min_surface_px"] in SURFACE_GRID
     assert model.max_roughness_mm == card["decoding"]["max_roughness_mm"] in ROUGHNESS_GRID
     assert model.margin_px == card["decoding"]["margin_px"] in MARGIN_GRID
-    assert model.window_px == card["decoding"]["window_px"] in WINDOW_GRID
     rule = rule_name(model.min_modulation, model.decoder.min_surface_px, model.max_roughness_mm, model.margin_px)
     chosen = card["decoding"]["validation"][rule][str(model.min_confidence)]
     within = chosen["silent_errors"] <= SILENT_ERROR_BUDGET and chosen["wrong_orders"] <= WRONG_ORDER_BUDGET

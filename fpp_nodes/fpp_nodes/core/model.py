@@ -106,7 +106,6 @@ class DepthModel:
                 self.max_roughness_mm = float(self.card["decoding"].get("max_roughness_mm", np.inf))
                 self.min_surface_px = int(self.card["decoding"].get("min_surface_px", 0))
                 self.margin_px = int(self.card["decoding"].get("margin_px", 0))  # cards before it: none
-                self.window_px = int(self.card["decoding"].get("window_px", ROUGHNESS_WINDOW))  # before: a period
             except (KeyError, TypeError, ValueError) as e:  # CalibrationError is a ValueError
                 raise ModelError(
                     f"model card {card_path} lacks the calibration or decoding of a phase-aware "
@@ -222,9 +221,7 @@ class DepthModel:
         if self.decoder is not None:
             fringes = decoded_fringes(image, out, self.min_modulation, self.decoder)
             depth, confidence = self.decoder(out, 0.0, fringes)  # every pixel whose order its neighbours share
-            depth = trusted_single_shot(
-                depth, image, fringes=fringes, max_roughness_mm=self.max_roughness_mm, window_px=self.window_px
-            )
+            depth = trusted_single_shot(depth, image, fringes=fringes, max_roughness_mm=self.max_roughness_mm)
             depth[~(confidence >= self.min_confidence)] = np.nan
             refusal_margin(depth, fringes, self.margin_px)
             return depth, confidence
@@ -296,18 +293,16 @@ def trusted_single_shot(
     max_depth_step_mm: float = QualityLimits.max_depth_step_mm,
     fringes: np.ndarray | None = None,
     max_roughness_mm: float = np.inf,
-    window_px: int | None = None,
 ) -> np.ndarray:
     """Set a network's depth to NaN (in place) where the image shows no usable fringes, where it
     smears a depth edge (a pixel whose depth differs from a neighbour's by more than max_depth_step_mm,
     the multi-shot path's flying-pixel rule: a network smooths a depth step across a few pixels), and,
     with a roughness limit, where the depth around it scatters by more than max_roughness_mm; the
-    pixels kept then take their window's mean depth (local_depth, over window_px; default
-    ROUGHNESS_WINDOW)."""
+    pixels kept then take their window's mean depth (local_depth)."""
     depth[~(fringe_mask(image) if fringes is None else fringes)] = np.nan
     depth[~drop_flying_pixels(depth, max_depth_step_mm)] = np.nan
     if np.isfinite(max_roughness_mm):
-        mean, roughness = local_depth(depth, window_px or ROUGHNESS_WINDOW)
+        mean, roughness = local_depth(depth)
         np.copyto(depth, mean)
         depth[~(roughness <= max_roughness_mm)] = np.nan
     return depth
@@ -324,19 +319,18 @@ def refusal_margin(depth: np.ndarray, fringes: np.ndarray, margin_px: int) -> No
         depth[near.view(bool)] = np.nan
 
 
-ROUGHNESS_WINDOW = CONTRAST_WINDOW  # pixels: one period of the default rig's carrier (a card's: decoding.window_px)
+ROUGHNESS_WINDOW = CONTRAST_WINDOW  # pixels: one period of the default rig's carrier
 
 
 def local_depth(depth: np.ndarray, window: int = ROUGHNESS_WINDOW) -> tuple[np.ndarray, np.ndarray]:
     """(mean, roughness) of a single-shot depth map over the window around each pixel (mm, NaN where
     it has no depth; NaN pixels and the outside of the image left out).
-    mean: one image tells the phase of a fringe period, not of a pixel (the window is at least one
-    carrier period in the default rig; a card's is chosen on validation), so the window's mean loses
-    little the image holds and halves what the network's noise puts beyond 1 mm (on validation).
-    Beside a hole or the border the window is lopsided and its mean is the depth at the known pixels'
-    centroid, off by up to slope x window / 4 on a tilted surface; on validation such pixels still
-    come out nearer the truth than unsmoothed (a plane fit, unbiased there, measured about as good
-    for three times the time: docs/single-shot.md).
+    mean: one image tells the phase of a fringe period, not of a pixel (the window is one carrier
+    period in the default rig), so the window's mean loses little the image holds and halves what the
+    network's noise puts beyond 1 mm (on validation). Beside a hole or the border the window is
+    lopsided and its mean is the depth at the known pixels' centroid, off by up to slope x 2 pixels
+    on a tilted surface; on validation such pixels still come out nearer the truth than unsmoothed
+    (a plane fit, unbiased there, measured about as good for three times the time: docs/single-shot.md).
     roughness: the RMS over the window of each depth's difference from its own window's mean: on a
     smooth surface, tilted or not, the network's phase noise through dz/dphi (a plane's depths equal
     their windows' means); where one image cannot tell the phase well (dark, noisy, textured,
