@@ -18,7 +18,10 @@ from __future__ import annotations
 import argparse
 import copy
 import hashlib
+import multiprocessing
+import os
 import warnings
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -139,15 +142,8 @@ def rule_name(floor: float, surface_px: int, roughness_mm: float, margin_px: int
 
 
 @torch.no_grad()
-def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: int = 200) -> dict:
-    """The fringe mask's floor, the smallest surface, the roughness limit and the refusal margin
-    (composite decoders) and the order-confidence threshold that give the most coverage while the
-    silent errors (output pixels off the exact depth, in a recorded set the multi-shot label, by more
-    than 1 mm) stay within SILENT_ERROR_BUDGET over the validation split and within SILENT_ERROR_LIMIT
-    in each of its scene families, and the wrong orders within WRONG_ORDER_BUDGET: chosen on
-    validation data, never on the test set."""
-
-    files = split_files(data, "val")[:limit]
+def validation_counts(files, model, decoder, grids: tuple) -> dict:
+    """rule_counts (with grids: its arguments after the decoder) of the network's outputs for files."""
 
     def samples():
         for f in files:
@@ -155,20 +151,34 @@ def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: 
             out = predict(model, torch.from_numpy(network_input(image))[None, None])[0].numpy()
             yield image, reference_depth(label, truth), out, sample_family(f)
 
+    return rule_counts(samples(), decoder, *grids)
+
+
+def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: int = 200) -> dict:
+    """The fringe mask's floor, the smallest surface, the roughness limit and the refusal margin
+    (composite decoders) and the order-confidence threshold that give the most coverage while the
+    silent errors (output pixels off the exact depth, in a recorded set the multi-shot label, by more
+    than 1 mm) stay within SILENT_ERROR_BUDGET over the validation split and within SILENT_ERROR_LIMIT
+    in each of its scene families, and the wrong orders within WRONG_ORDER_BUDGET: chosen on
+    validation data, never on the test set. The scenes are counted in a process per core (counts
+    add up)."""
+    files = split_files(data, "val")[:limit]
     composite = hasattr(decoder, "min_surface_px")
     surfaces, roughness, margins = (SURFACE_GRID, ROUGHNESS_GRID, MARGIN_GRID) if composite else ((0,), (np.inf,), (0,))
     wrong_order = wrong_order_mm(calibration)
-    counts = rule_counts(
-        samples(),
-        decoder,
-        FLOOR_GRID,
-        CONFIDENCE_GRID,
-        (QualityLimits.max_depth_step_mm,),
-        surfaces,
-        roughness,
-        margins,
-        wrong_order,
-    )
+    grids = (FLOOR_GRID, CONFIDENCE_GRID, (QualityLimits.max_depth_step_mm,), surfaces, roughness, margins, wrong_order)
+    workers = max(min(os.cpu_count() or 1, len(files)), 1)
+    if workers == 1:
+        counts = validation_counts(files, model, decoder, grids)
+    else:
+        counts = {}
+        spawn = multiprocessing.get_context("spawn")  # not fork: this process has run torch's threads
+        with ProcessPoolExecutor(workers, spawn, initializer=torch.set_num_threads, initargs=(1,)) as pool:
+            shares = [files[i::workers] for i in range(workers)]
+            for part in pool.map(validation_counts, shares, [model] * workers, [decoder] * workers, [grids] * workers):
+                for key, by_family in part.items():
+                    for family, n in by_family.items():
+                        counts.setdefault(key, {}).setdefault(family, np.zeros(4))[...] += n
     rows = {(m, px, c, r, k): rule_rates(n) for (m, px, c, _, r, k), n in counts.items()}
     good = [
         key
