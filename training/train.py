@@ -66,7 +66,7 @@ class TrainConfig:
     limit: int = 0  # use only the first N training samples (0: all)
     crop: int = 0  # train on random square crops of this size (0: whole images); composite only
     workers: int = 0  # data-loading processes (worth it beside a GPU)
-    init: str = ""  # start from these weights: a checkpoint, or a model file such as the shipped one (initial_weights)
+    init: str = ""  # start from these weights: a checkpoint, or a model file such as the shipped one
     seed: int = 0
 
     def __post_init__(self):
