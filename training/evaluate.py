@@ -90,7 +90,7 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
                 totals[0], totals[1] = totals[0] + float(known.sum()), totals[1] + known.size
     names = [n for n, _ in models]
     families = sorted({f for f, _ in errors}, key=lambda f: (f in held_out, f))
-    first = max(14, *(len(f) + 3 for f in families))  # a recorded set's families are its bags' names
+    first = max([14, *(len(f) + 3 for f in families)])  # a recorded set's families are its bags' names
     print(f"{split} split of {data}, by scene family (* held out of training and validation)")
     print(f"{'family':{first}}" + "".join(f"{n[:36]:>38}" for n in names))
     print(f"{'':{first}}" + "".join(f"{'RMSE mm  >1mm  orders   cover  conf':>38}" for _ in names))
