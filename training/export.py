@@ -197,7 +197,7 @@ def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: 
     if composite:
         chosen |= {"min_surface_px": surface, "max_roughness_mm": rough, "margin_px": margin}
     return chosen | {
-        "chosen_on": f"{data} val, {len(files)} scenes",
+        "chosen_on": f"{data} val, {len(files)} samples",
         "silent_error_budget": SILENT_ERROR_BUDGET,
         "silent_error_limit_per_family": SILENT_ERROR_LIMIT,
         "wrong_order_budget": WRONG_ORDER_BUDGET,
