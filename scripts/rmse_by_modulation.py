@@ -67,6 +67,8 @@ def main(argv=None):
     by_amplitude, by_texture = {}, {}  # (source, family, bin) -> [pixels, sum of clipped squared errors]
     for f in split_files(args.data, args.split):
         family, (image, label, truth) = sample_family(f), load_sample(f)
+        if not np.isfinite(truth).any():
+            raise SystemExit(f"{f} has no exact depth: this table needs a simulated set")
         with np.load(f, allow_pickle=False) as z:
             amplitude = np.hypot(*z["fringe"].astype(np.float32))
         variation = texture(amplitude)
