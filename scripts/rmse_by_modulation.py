@@ -52,7 +52,7 @@ def table(title: str, totals: dict, bins, names) -> None:
         for source in ("network", "label"):
             counts = [totals[(source, family, i)] for i in range(len(bins) - 1)]
             n_all = max(sum(c[0] for c in counts), 1)
-            cells = [f"{np.sqrt(s2 / max(n, 1)):.3f} {100 * n / n_all:4.1f}%" for n, s2 in counts]
+            cells = [f"{np.sqrt(s2 / n):.3f} {100 * n / n_all:4.1f}%" if n else "-" for n, s2 in counts]
             print(f"{family:10}{source:9}" + "".join(f"{c:>18}" for c in cells))
 
 
@@ -78,12 +78,11 @@ def main(argv=None):
             add(by_amplitude, (source, family), error, amplitude[given], AMPLITUDE_BINS)
             bright = amplitude[given] >= BRIGHT
             add(by_texture, (source, family), error[bright], variation[given][bright], TEXTURE_BINS)
-    bins = zip(AMPLITUDE_BINS, AMPLITUDE_BINS[1:])
     table(
         f"{args.split} split of {args.data}: clipped RMSE mm by B",
         by_amplitude,
         AMPLITUDE_BINS,
-        [f"B {a:.2f}-{b:.2f}" for a, b in bins],
+        [f"B {a:.2f}-{b:.2f}" for a, b in zip(AMPLITUDE_BINS, AMPLITUDE_BINS[1:])],
     )
     table(
         f"pixels with B >= {BRIGHT}: by texture (B's variation over a period)",
