@@ -22,7 +22,7 @@ import yaml
 
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.model import ROUGHNESS_WINDOW
-from training.dataset import load_sample, sample_family, split_files
+from training.dataset import load_phase_targets, load_sample, split_files
 from training.figures import load_models
 
 AMPLITUDE_BINS = (0.0, 0.02, 0.04, 0.08, 0.16, 1.0)
@@ -66,11 +66,11 @@ def main(argv=None):
     ((_, model),) = load_models([args.model], Calibration.from_dict(info["calibration"]))
     by_amplitude, by_texture = {}, {}  # (source, family, bin) -> [pixels, sum of clipped squared errors]
     for f in split_files(args.data, args.split):
-        family, (image, label, truth) = sample_family(f), load_sample(f)
+        image, label, truth = load_sample(f)
         if not np.isfinite(truth).any():
             raise SystemExit(f"{f} has no exact depth: this table needs a simulated set")
-        with np.load(f, allow_pickle=False) as z:
-            amplitude = np.hypot(*z["fringe"].astype(np.float32))
+        fringe, _, family = load_phase_targets(f)
+        amplitude = np.hypot(*fringe)
         variation = texture(amplitude)
         for source, depth in (("network", model.infer(image)[0]), ("label", label)):
             given = np.isfinite(depth) & np.isfinite(truth)
