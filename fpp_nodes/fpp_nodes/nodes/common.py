@@ -104,6 +104,11 @@ def spin(nodes: list[Node]) -> None:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # Ctrl+C shuts the context down from rclpy's signal handler, which can land while the executor
+        # takes a message or a callback publishes: what that raises is the shutdown, not an error
+        if rclpy.ok():
+            raise
     finally:
         for n in nodes:
             n.destroy_node()
