@@ -49,16 +49,23 @@ def projector_and_camera(robot, clouds, lines, frames):
     how many warm-up sequences were sent (capture_sequence counts each complete) and the next stamp."""
     pattern_pub = robot.node.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)
     camera_pub = robot.node.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
-    heard = lambda: pattern_pub.get_subscription_count() and camera_pub.get_subscription_count()  # noqa: E731
-    assert robot.spin_until(heard, 30)
-    t, sent = 1_000_000_000, 0
-    while not clouds and sent < 5:  # a cloud takes a second or two; 20 s without one: that sequence was lost
+    heard = (
+        pattern_pub.get_subscription_count,
+        camera_pub.get_subscription_count,
+        lambda: robot.node.count_publishers(Topics.POINTS),
+        lambda: robot.node.count_subscribers(Topics.SEQUENCE),
+    )
+    assert robot.spin_until(lambda: all(f() for f in heard), 30)
+    t, sent = 1_000_000_000, []
+    while not clouds and len(sent) < 10:  # a cloud takes a second or two
+        sent.append(t)
         t = show(robot, pattern_pub, camera_pub, zip(lines, frames), t)
-        sent += 1
-        robot.spin_until(lambda: bool(clouds), 20)
-    assert clouds, f"no cloud from {sent} warm-up sequences"
+        robot.spin_until(lambda: bool(clouds), 5)
+    assert clouds, f"no cloud from {len(sent)} warm-up sequences"
+    # the chain works from the first that came back on: the later ones' clouds are on their way
+    assert robot.spin_until(lambda: stamp_ns(clouds[-1].header.stamp) == sent[-1], 30)
     clouds.clear()
-    return pattern_pub, camera_pub, sent, t
+    return pattern_pub, camera_pub, len(sent), t
 
 
 def check_clouds(robot, clouds, truth, count=2, timeout=60):
