@@ -129,35 +129,6 @@ def photometric(rng, image: np.ndarray) -> tuple[np.ndarray, np.float32]:
     return np.clip(image, 0, 1).astype(np.float32), np.float32(gain)
 
 
-PATTERN_LIKE_STRIPES = 0.25  # share of composite crops given an albedo striped like one of the pattern's gratings
-
-
-def pattern_like_stripes(rng, targets: np.ndarray) -> np.ndarray | None:
-    """A striped albedo (1 - c (1 + cos) / 2, contrast c 0.2-0.9) near one of the composite's gratings
-    (carrier or a code: its period within 15%, its direction within 15 degrees), over a random box of
-    the crop; None where the crop shows too few fringes to tell their direction. One image cannot tell
-    such a surface's own stripes from the code they imitate except through what they do to the other
-    gratings (an albedo multiplies all of them: the carrier's amplitude swings with it, projected light
-    adds), and scenes draw them too rarely to learn that (docs/single-shot.md)."""
-    grating = int(rng.integers(len(targets) // 2))
-    z = targets[2 * grating + 1] + 1j * targets[2 * grating]  # B e^(i phase): denominator, numerator
-    steps = [np.angle(z[:, 1:] * np.conj(z[:, :-1])), np.angle(z[1:] * np.conj(z[:-1]))]
-    steps = [d[np.isfinite(d) & (d != 0)] for d in steps]
-    if min(d.size for d in steps) < targets[0].size // 4:
-        return None
-    turn, stretch = np.radians(rng.uniform(-15, 15)), rng.uniform(1 / 1.15, 1.15)
-    kx, ky = (float(np.median(d)) * stretch for d in steps)
-    kx, ky = kx * np.cos(turn) - ky * np.sin(turn), kx * np.sin(turn) + ky * np.cos(turn)
-    h, w = targets.shape[1:]
-    y, x = np.mgrid[:h, :w].astype(np.float32)
-    stripes = 1 - rng.uniform(0.2, 0.9) * 0.5 * (1 + np.cos(kx * x + ky * y + rng.uniform(0, 2 * np.pi)))
-    top, left = rng.integers(0, h // 2), rng.integers(0, w // 2)
-    bottom, right = rng.integers(top + h // 3, h + 1), rng.integers(left + w // 3, w + 1)
-    albedo = np.ones((h, w), np.float32)
-    albedo[top:bottom, left:right] = stripes[top:bottom, left:right]
-    return albedo
-
-
 class FringePhaseSet(Dataset):
     """(image [0, 1], fringe numerator/denominator, r in orders, label mm) tensors at full resolution
     for the phase-aware network; r is the multi-shot phase relative to the calibration's
@@ -223,9 +194,6 @@ class CompositeSet(Dataset):
             image, targets, label = image[window], targets[(slice(None),) + window], label[window]
         image, targets = network_input(image), targets.astype(np.float32)
         if self.augment:
-            albedo = pattern_like_stripes(self.rng, targets) if self.rng.random() < PATTERN_LIKE_STRIPES else None
-            if albedo is not None:  # the light the surface sends back, and the fringes' amplitudes with it
-                image, targets = image * albedo, targets * albedo
             image, gain = photometric(self.rng, image)
             targets = targets * gain
         return torch.from_numpy(image)[None], torch.from_numpy(targets), torch.from_numpy(label)[None]
