@@ -1,10 +1,14 @@
 """The shipped single-shot model (or --model) on a rig whose photometry leaves the ranges it was trained
 on (training's `random_rig`: ambient 0-15% of full scale, gain 0.4-1.0, noise 0.5-3 counts, blur 0.3-1.2
-px; the projector's gamma as the patterns assume), and on rigs of another geometry: does it say NaN, or
-guess?
+px; the projector's gamma as the patterns assume), on surfaces textured unlike any scene's, and on rigs
+of another geometry: does it say NaN, or guess?
 
 Photometry: renders the same scenes (the demo's sculpture and fresh seeds of three training families,
-none in any data set) under each condition with the default rig's geometry. Geometry: each rig is
+none in any data set) under each condition with the default rig's geometry. Textures: the same scenes,
+every surface of albedo 0.8 times a texture the scene generator never draws: black print, 1/f noise,
+stripes finer than its, and stripes laid exactly like one of the composite's gratings (the albedo the
+projected grating would print on that surface; the worst case for one image, which cannot tell them
+from the grating except through what the albedo does to the other gratings). Geometry: each rig is
 calibrated from simulated noisy planes 60 mm either side of its stand-off (its working range) and
 measures the sculpture and separated objects (fresh seeds) through that calibration, as cnn_depth does
 with the rig's calibration; beside it, the same decoded with the model card's calibration (the training
@@ -19,12 +23,13 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 
+import cv2
 import numpy as np
 
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import DepthModel, default_model_path
 from fpp_nodes.core.scenes import make_scene
-from fpp_nodes.core.simulation import Rig, render
+from fpp_nodes.core.simulation import Rig, Scene, SceneRenderer, render
 from fpp_nodes.core.workflow import simulated_calibration
 
 CONDITIONS = {
@@ -40,6 +45,48 @@ CONDITIONS = {
     "gain 1.3 (bright surfaces clip)": dict(gain=1.3),
 }
 SCENES = [(family, seed) for family in ("sculpture", "freeform", "blocks", "bust") for seed in (7001, 7002)]
+
+
+def grating(contrast: float, which: int):
+    """Texture: stripes where the composite's grating which (0 the carrier, 1.. its codes) falls on the surface."""
+
+    def texture(rng, patterns, xp, yp):
+        fx, fy = [(patterns.frequencies[-1], 0.0), *patterns.code_frequencies][which]
+        phase = 2 * np.pi * (fx * xp / patterns.width + fy * yp / patterns.height) + rng.uniform(0, 2 * np.pi)
+        return 1 - contrast * 0.5 * (1 + np.cos(phase))
+
+    return texture
+
+
+def black_print(rng, patterns, xp, yp):  # blobs and strokes of ink 2 px and up, on white
+    field = cv2.GaussianBlur(rng.standard_normal(xp.shape), (0, 0), 2.0)
+    return 1 - 0.97 * (field > 0.5 * field.std())
+
+
+def pink_noise(rng, patterns, xp, yp):  # every scale at once, as natural surfaces are
+    ky, kx = np.meshgrid(np.fft.fftfreq(xp.shape[0]), np.fft.fftfreq(xp.shape[1]), indexing="ij")
+    field = np.fft.ifft2(np.fft.fft2(rng.standard_normal(xp.shape)) / np.maximum(np.hypot(kx, ky), 1e-3)).real
+    return 1 - 0.9 * (field - field.min()) / (field.max() - field.min())
+
+
+def fine_stripes(rng, patterns, xp, yp):  # 4 px apart (1 mm at the stand-off), any direction
+    y, x = np.indices(xp.shape)
+    angle = rng.uniform(0, np.pi)
+    return 1 - 0.8 * (((x * np.cos(angle) + y * np.sin(angle)) / 4.0 + rng.uniform()) % 1.0 < 0.5)
+
+
+TEXTURES = {
+    "none (albedo 0.8)": lambda rng, patterns, xp, yp: np.ones(xp.shape),
+    "black print on white (contrast 0.97)": black_print,
+    "1/f noise, contrast 0.9": pink_noise,
+    "stripes 4 px apart, contrast 0.8": fine_stripes,
+    "laid like the carrier, contrast 0.6": grating(0.6, 0),
+    **{
+        f"laid like the {name} code, contrast {contrast}": grating(contrast, which)
+        for which, name in ((1, "fine"), (2, "coarse"))
+        for contrast in (0.4, 0.6)
+    },
+}
 GEOMETRIES = {
     "the default rig": {},
     "stand-off 600 mm, the same field of view": dict(standoff_mm=600.0, focal_px=Rig.focal_px / 2),
@@ -54,11 +101,23 @@ GEOMETRIES = {
 GEOMETRY_SCENES = [(kind, seed) for kind in ("sculpture", "objects") for seed in (7001, 7002)]
 
 
-def measure(model, rig, patterns, scenes) -> tuple[ErrorTotals, ErrorTotals]:
+def textured(rig, patterns, scene, texture, seed: int):
+    """The scene with every surface of albedo 0.8 times texture(rng, patterns, xp, yp): at each pixel, the
+    projector column and row its surface point lies on."""
+    renderer = SceneRenderer(rig, scene)
+    xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
+    albedo = 0.8 * texture(np.random.default_rng([seed, 2]), patterns, xp, yp)
+    return Scene(scene.name, scene.depth_mm, np.where(scene.albedo > 0, albedo, 0.0))
+
+
+def measure(model, rig, patterns, scenes, texture=None) -> tuple[ErrorTotals, ErrorTotals]:
     """The model's output on scenes rendered by rig showing patterns: totals at 1 mm and at 4 mm."""
     within, beyond = ErrorTotals(), ErrorTotals()
     for kind, seed in scenes:
-        capture = render(rig, make_scene(rig, kind, seed), patterns, np.random.default_rng(seed))
+        scene = make_scene(rig, kind, seed)
+        if texture is not None:
+            scene = textured(rig, patterns, scene, texture, seed)
+        capture = render(rig, scene, patterns, np.random.default_rng(seed))
         truth = np.where(capture.valid, capture.depth_mm, np.nan)
         depth = model(capture.images[patterns.single_shot_index])
         within.add(depth, truth, 1.0)
@@ -77,6 +136,10 @@ def main(argv=None):
     print(f"{'photometry':46} {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
     for name, changes in CONDITIONS.items():
         within, beyond = measure(model, replace(base, **changes), patterns, SCENES)
+        print(f"{name:46} {within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
+    print(f"\n{'texture':46} {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
+    for name, texture in TEXTURES.items():
+        within, beyond = measure(model, base, patterns, SCENES, texture)
         print(f"{name:46} {within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
     print(f"\n{len(GEOMETRY_SCENES)} scenes (fresh seeds of the sculpture and of separated objects)")
     print(f"{'':46} {'the rig calibration':>21}   {'the card calibration':>21}")
