@@ -6,7 +6,7 @@ of another geometry: does it say NaN, or guess?
 Photometry: renders the same scenes (the demo's sculpture and fresh seeds of three training families,
 none in any data set) under each condition with the default rig's geometry. Textures: the same scenes,
 every surface of albedo 0.8 times a texture the scene generator never draws: black print, 1/f noise,
-stripes finer than its, and stripes laid exactly like one of the composite's gratings (the albedo the
+stripes finer than any it draws, and stripes laid exactly like one of the composite's gratings (the albedo the
 projected grating would print on that surface; the worst case for one image, which cannot tell them
 from the grating except through what the albedo does to the other gratings). Geometry: each rig is
 calibrated from simulated noisy planes 60 mm either side of its stand-off (its working range) and
