@@ -64,6 +64,8 @@ FLOOR_GRID = (0.01, 0.02, 0.03, 0.05)  # the fringe mask's floor: the network's 
 SURFACE_GRID = (0, 500, 2000)  # the composite decoder's smallest surface (pixels) whose vote counts
 ROUGHNESS_GRID = (0.15, 0.2, 0.25, 0.3, 0.4, 0.5, np.inf)  # the composite's roughness rule (mm; inf: none)
 MARGIN_GRID = (0, 1, 2, 3)  # pixels around a refused pixel that are refused too (model.refusal_margin)
+SIDEBAND_GRID = (0.05, 0.06, 0.07, 0.08, 0.09, 0.1, 0.12, 0.15)  # CompositeDecoder.max_sideband
+SIDEBAND_REFUSAL_BUDGET = 0.005  # the share of the validation output the stripes rule may refuse
 OUTPUTS = {"phase": "fringe_order", "composite": "fringe_phases"}  # other architectures: depth_mm
 
 
@@ -77,23 +79,25 @@ def rule_counts(
     roughness_mm=(np.inf,),
     margins_px=(0,),
     wrong_order=np.inf,
+    sidebands=(np.inf,),
 ) -> dict:
-    """(floor, surface px, confidence, step, roughness, margin px) -> {family: [output pixels, silent
-    errors (off the exact depth by > 1 mm), exact pixels, wrong orders (off by more than wrong_order
-    mm)]} over samples of (image, exact depth, network outputs, family), decoded as DepthModel.infer
-    does with that fringe-mask floor, smallest surface (a composite decoder's min_surface_px),
-    order-confidence threshold, edge-rule step, roughness limit and refusal margin."""
+    """(floor, surface px, sideband, confidence, step, roughness, margin px) -> {family: [output pixels,
+    silent errors (off the exact depth by > 1 mm), exact pixels, wrong orders (off by more than
+    wrong_order mm)]} over samples of (image, exact depth, network outputs, family), decoded as
+    DepthModel.infer does with that fringe-mask floor, smallest surface and stripes' sidebands (a
+    composite decoder's min_surface_px and max_sideband), order-confidence threshold, edge-rule step,
+    roughness limit and refusal margin."""
     counts = {}
     for image, truth, out, family in samples:
         exact = np.isfinite(truth)
         for m in floors:
             fringes = decoded_fringes(image, out, m, decoder)
-            for px in surfaces_px:
+            for px, t in ((px, t) for px in surfaces_px for t in sidebands):
                 decode = decoder
                 if hasattr(decoder, "min_surface_px"):
                     decode = copy.copy(decoder)
-                    decode.min_surface_px = px
-                kept, confidence = decode(out, 0.0, fringes)
+                    decode.min_surface_px, decode.max_sideband = px, t
+                kept, confidence = decode(out, 0.0, fringes, image)
                 for s in steps_mm:
                     shown = trusted_single_shot(kept.copy(), image, max_depth_step_mm=s, fringes=fringes)
                     mean, roughness = local_depth(shown)
@@ -110,7 +114,7 @@ def rule_counts(
                                 far = cv2.distanceTransform((~refused).view(np.uint8), cv2.DIST_C, 3)
                             for k in margins_px:
                                 ok = given & (far > k) if k else given
-                                n = counts.setdefault((m, px, c, s, r, k), {}).setdefault(family, np.zeros(4))
+                                n = counts.setdefault((m, px, t, c, s, r, k), {}).setdefault(family, np.zeros(4))
                                 n += (
                                     ok.sum(),
                                     np.count_nonzero(wrong & ok),
@@ -160,26 +164,17 @@ def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: 
     silent errors (output pixels off the exact depth, in a recorded set the multi-shot label, by more
     than 1 mm) stay within SILENT_ERROR_BUDGET over the validation split and within SILENT_ERROR_LIMIT
     in each of its scene families, and the wrong orders within WRONG_ORDER_BUDGET: chosen on
-    validation data, never on the test set. The scenes are counted in a process per core (counts
-    add up)."""
+    validation data, never on the test set. Then, with those, a composite decoder's stripes rule: the
+    lowest max_sideband of SIDEBAND_GRID that refuses at most SIDEBAND_REFUSAL_BUDGET of that output
+    (none is striped like a code, so what it refuses there is its false alarms)."""
     files = split_files(data, "val")[:limit]
     composite = hasattr(decoder, "min_surface_px")
     surfaces, roughness, margins = (SURFACE_GRID, ROUGHNESS_GRID, MARGIN_GRID) if composite else ((0,), (np.inf,), (0,))
-    wrong_order = wrong_order_mm(calibration)
-    grids = (FLOOR_GRID, CONFIDENCE_GRID, (QualityLimits.max_depth_step_mm,), surfaces, roughness, margins, wrong_order)
-    workers = max(min(os.cpu_count() or 1, len(files)), 1)
-    if workers == 1:
-        counts = validation_counts(files, model, decoder, grids)
-    else:
-        counts = {}
-        spawn = multiprocessing.get_context("spawn")  # not fork: this process has run torch's threads
-        with ProcessPoolExecutor(workers, spawn, initializer=torch.set_num_threads, initargs=(1,)) as pool:
-            shares = [files[i::workers] for i in range(workers)]
-            for part in pool.map(validation_counts, shares, [model] * workers, [decoder] * workers, [grids] * workers):
-                for key, by_family in part.items():
-                    for family, n in by_family.items():
-                        counts.setdefault(key, {}).setdefault(family, np.zeros(4))[...] += n
-    rows = {(m, px, c, r, k): rule_rates(n) for (m, px, c, _, r, k), n in counts.items()}
+    wrong_order, step = wrong_order_mm(calibration), QualityLimits.max_depth_step_mm
+    counts = parallel_counts(
+        files, model, decoder, (FLOOR_GRID, CONFIDENCE_GRID, (step,), surfaces, roughness, margins, wrong_order)
+    )
+    rows = {(m, px, c, r, k): rule_rates(n) for (m, px, _, c, _, r, k), n in counts.items()}
     good = [
         key
         for key, r in rows.items()
@@ -196,6 +191,26 @@ def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: 
     chosen = {"min_confidence": confidence, "min_modulation": floor}
     if composite:
         chosen |= {"min_surface_px": surface, "max_roughness_mm": rough, "margin_px": margin}
+        grids = (
+            (floor,),
+            (confidence,),
+            (step,),
+            (surface,),
+            (rough,),
+            (margin,),
+            wrong_order,
+            (*SIDEBAND_GRID, np.inf),
+        )
+        by_sideband = {t: n for (_, _, t, *_), n in parallel_counts(files, model, decoder, grids).items()}
+        output = {t: sum(n[0] for n in by_family.values()) for t, by_family in by_sideband.items()}
+        allowed = [t for t in SIDEBAND_GRID if output[t] >= (1 - SIDEBAND_REFUSAL_BUDGET) * output[np.inf]]
+        chosen |= {
+            "max_sideband": float(min(allowed, default=np.inf)),
+            "sideband_refusal_budget": SIDEBAND_REFUSAL_BUDGET,
+            "sidebands": {  # each max_sideband's share of the output it refuses, with the chosen other rules
+                str(t): round(float(1 - output[t] / max(output[np.inf], 1)), 6) for t in SIDEBAND_GRID
+            },
+        }
     return chosen | {
         "chosen_on": f"{data} val, {len(files)} samples",
         "silent_error_budget": SILENT_ERROR_BUDGET,
@@ -211,6 +226,22 @@ def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: 
             for k in margins
         },
     }
+
+
+def parallel_counts(files, model, decoder, grids: tuple) -> dict:
+    """validation_counts in a process per core (counts add up)."""
+    workers = max(min(os.cpu_count() or 1, len(files)), 1)
+    if workers == 1:
+        return validation_counts(files, model, decoder, grids)
+    counts = {}
+    spawn = multiprocessing.get_context("spawn")  # not fork: this process has run torch's threads
+    with ProcessPoolExecutor(workers, spawn, initializer=torch.set_num_threads, initargs=(1,)) as pool:
+        shares = [files[i::workers] for i in range(workers)]
+        for part in pool.map(validation_counts, shares, [model] * workers, [decoder] * workers, [grids] * workers):
+            for key, by_family in part.items():
+                for family, n in by_family.items():
+                    counts.setdefault(key, {}).setdefault(family, np.zeros(4))[...] += n
+    return counts
 
 
 class HalfResolution(torch.nn.Module):

@@ -221,6 +221,8 @@ def _reconstruct(
         depth, confidence = model.infer(images[index])
         if warning := model.range_warning():
             print(f"warning: {warning}", file=sys.stderr)
+        if warning := model.stripes_warning():
+            print(f"warning: {warning}", file=sys.stderr)
         quality = confidence if confidence is not None else np.isfinite(depth).astype(np.float32)
         return Reconstruction(
             depth,

@@ -24,6 +24,8 @@ from training.export import (
     FLOOR_GRID,
     MARGIN_GRID,
     ROUGHNESS_GRID,
+    SIDEBAND_GRID,
+    SIDEBAND_REFUSAL_BUDGET,
     SILENT_ERROR_BUDGET,
     SILENT_ERROR_LIMIT,
     SURFACE_GRID,
@@ -382,6 +384,10 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     assert model.decoder.min_surface_px == card["decoding"]["min_surface_px"] in SURFACE_GRID
     assert model.max_roughness_mm == card["decoding"]["max_roughness_mm"] in ROUGHNESS_GRID
     assert model.margin_px == card["decoding"]["margin_px"] in MARGIN_GRID
+    # then the stripes rule, the lowest threshold whose false alarms on validation stay within budget
+    sidebands = card["decoding"]["sidebands"]
+    assert model.decoder.max_sideband == card["decoding"]["max_sideband"] in (*SIDEBAND_GRID, np.inf)
+    assert all((sidebands[str(t)] <= SIDEBAND_REFUSAL_BUDGET) == (t >= model.max_sideband) for t in SIDEBAND_GRID)
     rule = rule_name(model.min_modulation, model.decoder.min_surface_px, model.max_roughness_mm, model.margin_px)
     chosen = card["decoding"]["validation"][rule][str(model.min_confidence)]
     within = chosen["silent_errors"] <= SILENT_ERROR_BUDGET and chosen["wrong_orders"] <= WRONG_ORDER_BUDGET

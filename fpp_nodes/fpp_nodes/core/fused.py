@@ -245,3 +245,51 @@ def _wrapped_square(miss):
     """The square of a phase difference brought into [-pi, pi)."""
     miss -= _TWO_PI * np.float32(np.floor((miss + _PI) * _INV_TWO_PI))
     return miss * miss
+
+
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+def demodulated_blocks(image, phasors, factor):
+    """Block sums (factor x factor pixels) of an image (float32) demodulated, for
+    reconstruct.code_sidebands. phasors (2 P, H, W): P phasors' sines and cosines (any amplitude), the
+    carrier's first; the demodulations are by the carrier's conjugate unit phasor e = conj(u_0), then
+    by e u_k and e conj(u_k) for each other k. Returns (3 P - 2, 2, H / factor, W / factor): the real
+    and imaginary parts' sums of image x each demodulation, then of each u_k itself (k > 0). Rows are
+    summed at full width first, across each block once per block."""
+    count, width = phasors.shape[0] // 2, image.shape[1]
+    rows, cols = image.shape[0] // factor, width // factor
+    planes = 3 * count - 2
+    sums = np.empty((planes, 2, rows, cols), np.float32)
+    rows_sum = np.empty((planes, 2, width), np.float32)
+    re, im = np.empty((count, width), np.float32), np.empty((count, width), np.float32)
+    for block in range(rows):
+        rows_sum[:] = 0
+        for r in range(block * factor, (block + 1) * factor):
+            for k in range(count):
+                for c in range(width):
+                    s, co = phasors[2 * k, r, c], phasors[2 * k + 1, r, c]
+                    scale = np.float32(1) / math.sqrt(s * s + co * co + np.float32(1e-12))
+                    re[k, c] = co * scale
+                    im[k, c] = s * scale
+            value, acc = image[r], rows_sum[0]
+            for c in range(width):
+                acc[0, c] += value[c] * re[0, c]
+                acc[1, c] -= value[c] * im[0, c]
+            for k in range(1, count):
+                plus, minus, code = rows_sum[2 * k - 1], rows_sum[2 * k], rows_sum[2 * count - 2 + k]
+                for c in range(width):
+                    code[0, c] += re[k, c]
+                    code[1, c] += im[k, c]
+                    er, ei, ur, ui = re[0, c], -im[0, c], re[k, c], im[k, c]
+                    plus[0, c] += value[c] * (er * ur - ei * ui)  # e u_k: carrier - code
+                    plus[1, c] += value[c] * (er * ui + ei * ur)
+                    minus[0, c] += value[c] * (er * ur + ei * ui)  # e conj(u_k): carrier + code
+                    minus[1, c] += value[c] * (ei * ur - er * ui)
+        for d in range(planes):
+            for j in range(2):
+                row, out = rows_sum[d, j], sums[d, j, block]
+                for b in range(cols):
+                    total = np.float32(0)
+                    for i in range(factor):
+                        total += row[b * factor + i]
+                    out[b] = total
+    return sums

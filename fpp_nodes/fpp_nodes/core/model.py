@@ -106,6 +106,7 @@ class DepthModel:
                 self.max_roughness_mm = float(self.card["decoding"].get("max_roughness_mm", np.inf))
                 self.min_surface_px = int(self.card["decoding"].get("min_surface_px", 0))
                 self.margin_px = int(self.card["decoding"].get("margin_px", 0))  # cards before it: none
+                self.max_sideband = float(self.card["decoding"].get("max_sideband", np.inf))  # ... none
             except (KeyError, TypeError, ValueError) as e:  # CalibrationError is a ValueError
                 raise ModelError(
                     f"model card {card_path} lacks the calibration or decoding of a phase-aware "
@@ -152,7 +153,7 @@ class DepthModel:
                 self.decoder = (
                     PhaseOrderDecoder(self.card_calibration)
                     if self.output == "fringe_order"
-                    else CompositeDecoder(calibration or self.card_calibration, self.min_surface_px)
+                    else CompositeDecoder(calibration or self.card_calibration, self.min_surface_px, self.max_sideband)
                 )
             except PhaseError as e:
                 whose = "its card's" if calibration is None or self.output == "fringe_order" else "the rig's"
@@ -171,6 +172,17 @@ class DepthModel:
         return (
             f"the codes of {outside:.0%} of the pixels with fringes name no order of the working range "
             f"{near:g}-{far:g} mm: is the scene nearer or farther?"
+        )
+
+    def stripes_warning(self) -> str | None:
+        """After a frame of a composite model: what to say where it refused surfaces for an albedo striped
+        like the pattern's code gratings (CompositeDecoder.striped); None otherwise."""
+        striped = getattr(self.decoder, "striped", 0.0)
+        if not striped:
+            return None
+        return (
+            f"{striped:.1%} of the pixels with fringes lie on surfaces striped like the pattern's code gratings: "
+            "one image cannot tell their fringe order (the multi-shot path measures them)"
         )
 
     def check(self, image: np.ndarray) -> None:
@@ -220,7 +232,7 @@ class DepthModel:
         out = self.output_channels(raw)
         if self.decoder is not None:
             fringes = decoded_fringes(image, out, self.min_modulation, self.decoder)
-            depth, confidence = self.decoder(out, 0.0, fringes)  # every pixel whose order its neighbours share
+            depth, confidence = self.decoder(out, 0.0, fringes, image)  # every pixel whose order its neighbours share
             depth = trusted_single_shot(depth, image, fringes=fringes, max_roughness_mm=self.max_roughness_mm)
             depth[~(confidence >= self.min_confidence)] = np.nan
             refusal_margin(depth, fringes, self.margin_px)
@@ -272,8 +284,9 @@ class PhaseOrderDecoder:
         self.terms = depth_terms(calibration)
 
     def __call__(
-        self, out: np.ndarray, min_confidence: float, fringes: np.ndarray | None = None
+        self, out: np.ndarray, min_confidence: float, fringes: np.ndarray | None = None, image=None
     ) -> tuple[np.ndarray, np.ndarray]:
+        """As CompositeDecoder's (the paper's pattern has no code gratings, so the image tells nothing more)."""
         num, den, orders, log_sigma = (np.ascontiguousarray(c, np.float32) for c in out)
         wrapped = cv2.phase(den, num)  # atan2(num, den) in [0, 2 pi)
         coarse = self.reference + np.float32(2 * np.pi) * orders

@@ -248,12 +248,16 @@ class CompositeDecoder:
     Depth is NaN where a pixel does not keep its order, below min_confidence, where the image shows
     no fringes and where its codes name an order outside the working range (the nearest order inside
     would be wrong): the decoder never adopts an order a pixel's own code did not give.
-    outside_range: after each call, the share of the pixels with fringes whose codes named no order
-    of the working range (a scene too near or too far, or codes too noisy to tell).
+    An albedo striped like a code grating moves that code's phase over the whole stripes, and the
+    surface's codes then agree on a wrong order. Given the image, a surface more than half of whose
+    pixels show code sidebands (code_sidebands) of at least max_sideband has confidence 0.
+    After each call: outside_range, the share of the pixels with fringes whose codes named no order
+    of the working range (a scene too near or too far, or codes too noisy to tell); striped, the share
+    on surfaces refused for their stripes.
     """
 
-    def __init__(self, calibration: Calibration, min_surface_px: int = 0):
-        self.min_surface_px = min_surface_px
+    def __init__(self, calibration: Calibration, min_surface_px: int = 0, max_sideband: float = np.inf):
+        self.min_surface_px, self.max_sideband = min_surface_px, max_sideband
         if not calibration.code_models:
             raise PhaseError("the composite decoder needs a calibration made with the composite pattern (code models)")
         if calibration.working_range_mm is None:
@@ -355,10 +359,15 @@ class CompositeDecoder:
         )
 
     def __call__(
-        self, out: np.ndarray, min_confidence: float, fringes: np.ndarray | None = None
+        self,
+        out: np.ndarray,
+        min_confidence: float,
+        fringes: np.ndarray | None = None,
+        image: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """out: (2 + 2 x codes, H, W) the carrier's numerator and denominator, then each code's; fringes:
-        the pixels that show fringes (default all). Returns (depth mm, confidence), NaN where unknown."""
+        the pixels that show fringes (default all); image: the fringe image out was read from (without
+        it, no stripes rule). Returns (depth mm, confidence), NaN where unknown."""
         two_pi = np.float32(2 * np.pi)
         carrier, *codes = (
             cv2.phase(np.ascontiguousarray(den, np.float32), np.ascontiguousarray(num, np.float32))
@@ -380,6 +389,13 @@ class CompositeDecoder:
         share = (agreeing / np.maximum(size, 1)).astype(np.float32)
         share[0] = 0  # label 0: beside a step, on no surface
         share[size < self.min_surface_px] = 0
+        self.striped = 0.0
+        if image is not None and np.isfinite(self.max_sideband):
+            sidebands = (code_sidebands(image, out) >= self.max_sideband).ravel()
+            striped = np.bincount(surface.ravel(), weights=sidebands, minlength=size.size) > size / 2
+            striped &= share > 0  # on a surface (not label 0) whose vote counts
+            share[striped] = 0
+            self.striped = float(np.sum(size[striped])) / max(shown, 1)
         confidence = np.minimum(vote, np.take(share, surface))
         np.copyto(confidence, np.float32(np.nan), where=~fringes)
         ca, cb, da, db = self.terms
@@ -397,6 +413,49 @@ def order_surfaces(absolute: np.ndarray, fringes: np.ndarray) -> tuple[np.ndarra
     inside = fringes & drop_flying_pixels(absolute, np.pi)
     count, labels = cv2.connectedComponents(inside.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
     return labels, np.bincount(labels.ravel(), minlength=count)
+
+
+# The sidebands' window: a Gaussian of this sigma (pixels; 2.7 of the default rig's carrier periods). At
+# 6 px the coarse code's own lobe leaks into the sidebands (0.09 on a plain plane); from 10 px it does not.
+SIDEBAND_WINDOW_PX = 25.0
+SIDEBAND_BLOCK = 4  # the demodulated image is summed over blocks this wide and windowed there: 16x fewer pixels
+
+
+def code_sidebands(image: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """How much the carrier's amplitude swings with a code grating, per pixel: the image less its local
+    mean, demodulated at the carrier's phase plus and minus each code's (the phases out gives: the
+    carrier's numerator and denominator, then each code's), over a window of SIDEBAND_WINDOW_PX, less
+    what the carrier's own demodulation times the code's mean phasor over the window explains (where
+    the network cannot read a code, in heavy defocus, its phase varies slowly and would carry the
+    carrier into the sidebands); the mean of each pair against the carrier's own, the larger over the
+    codes.
+    Projected light only adds, so the composite's gratings make no such sidebands. An albedo multiplies
+    all of them: stripes of contrast c laid like a code give (c/4) / (1 - c/2) (0.21 at c = 0.6), and
+    add a lobe of 5 times that of the carrier's amplitude where the code is read (the code's own:
+    CODE_AMPLITUDE / CARRIER_AMPLITUDE = 0.75), which moves the code's phase. Computed on blocks of
+    SIDEBAND_BLOCK pixels (fused.demodulated_blocks) and resized back."""
+    height, width = image.shape
+    small = (width // SIDEBAND_BLOCK, height // SIDEBAND_BLOCK)
+    sigma = SIDEBAND_WINDOW_PX / SIDEBAND_BLOCK
+
+    def window(x):
+        return cv2.GaussianBlur(x, (0, 0), sigma)
+
+    mean = window(cv2.resize(image.astype(np.float32), small, interpolation=cv2.INTER_AREA))
+    light = cv2.subtract(image, cv2.resize(mean, (width, height)), dtype=cv2.CV_32F)
+    carrier, *demodulated = (
+        window(re) + 1j * window(im) for re, im in fused.demodulated_blocks(light, out, SIDEBAND_BLOCK)
+    )
+    codes = len(demodulated) // 3
+    sidebands, phasors = demodulated[: 2 * codes], demodulated[2 * codes :]
+    phasors = [p * np.float32(1 / SIDEBAND_BLOCK**2) for p in phasors]  # the window's mean u_k
+    ratio = np.maximum.reduce(
+        [
+            (np.abs(plus - carrier * u) + np.abs(minus - carrier * np.conj(u))) / 2
+            for plus, minus, u in zip(sidebands[0::2], sidebands[1::2], phasors)
+        ]
+    ) / np.maximum(np.abs(carrier), np.float32(1e-6))
+    return cv2.resize(ratio.astype(np.float32), image.shape[::-1], interpolation=cv2.INTER_LINEAR)
 
 
 FTP_MIN_CONFIDENCE = 0.5  # the composite by FTP: not tuned (a baseline), half the neighbourhood agrees

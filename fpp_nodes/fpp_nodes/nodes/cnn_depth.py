@@ -160,6 +160,8 @@ class CnnDepth(Node):
             self.health.fact("fringes outside the working range (last)", f"{outside:.1%}")
         if warning := self.model.range_warning():
             self.health.report("frames outside the working range", warning)
+        if warning := self.model.stripes_warning():
+            self.health.report("frames with surfaces striped like the pattern", warning)
 
     def destroy_node(self):
         if self.decoder_thread.is_alive():

@@ -24,7 +24,7 @@ from fpp_nodes.core.model import default_model_path
 from fpp_nodes.core.patterns import pattern_images
 from fpp_nodes.core.scenes import make_scene
 from fpp_nodes.core.sequence import ShownPatterns
-from fpp_nodes.core.simulation import Rig, render
+from fpp_nodes.core.simulation import Rig, Scene, SceneRenderer, render
 from fpp_nodes.nodes.common import spin
 
 from rosgraph import Diagnostics, fresh_domain_id
@@ -139,11 +139,17 @@ def test_bad_frames_into_the_single_shot_path(ros_graph):
     inputs = {kind: msg for kind, (msg, _) in bad_frames(good).items()}
     rig = Rig()
     far = render(rig, make_scene(rig, "plane", depth_mm=1420), patterns, np.random.default_rng(3)).images
+    plane = make_scene(rig, "plane", depth_mm=1150)  # its albedo striped as the fine code falls on it
+    seen, (fx, fy) = SceneRenderer(rig, plane), patterns.code_frequencies[0]
+    code = 2 * np.pi * (fx * seen.xp[seen.crop] / patterns.width + fy * seen.yp[seen.crop] / patterns.height)
+    stripes = Scene(plane.name, plane.depth_mm, plane.albedo * (1 - 0.3 * (1 + np.cos(code))))  # contrast 0.6
+    striped = render(rig, stripes, patterns, np.random.default_rng(3)).images
     inputs.update(
         {
             "dark": numpy_to_image(np.zeros_like(good)),
             "saturated": numpy_to_image(np.full_like(good, 255)),
             "beyond the working range": numpy_to_image(far[patterns.single_shot_index]),  # 1000-1350 mm
+            "striped like a code": numpy_to_image(striped[patterns.single_shot_index]),
             "good": numpy_to_image(good),
         }
     )
@@ -151,11 +157,12 @@ def test_bad_frames_into_the_single_shot_path(ros_graph):
         msg.header = header_at(n * 1_000_000_000, Frames.CAMERA)
         camera_pub.publish(msg)  # one at a time: the node keeps only the newest frame
         assert robot.spin_until(lambda: diagnostics.value("/cnn/cnn_depth", "frames in") == str(n), 60), kind
-    assert robot.spin_until(lambda: len(depths) == 4, 60)
-    assert [stamp_ns(d.header.stamp) // 1_000_000_000 for d in depths] == [6, 7, 8, 9]  # dark, ..., good
-    dark, saturated, beyond, fine = (image_to_numpy(d) for d in depths)
+    assert robot.spin_until(lambda: len(depths) == 5, 60)
+    assert [stamp_ns(d.header.stamp) // 1_000_000_000 for d in depths] == [6, 7, 8, 9, 10]  # dark, ..., good
+    dark, saturated, beyond, stripes, fine = (image_to_numpy(d) for d in depths)
     assert np.isnan(dark).all() and np.isnan(saturated).all()  # no fringes, no made-up surface
     assert np.isnan(beyond).all()  # not the nearest order inside the working range
+    assert np.isnan(stripes).all()  # its codes are the stripes': an order off, so none
     truth_m = np.where(capture.valid, capture.depth_mm / 1000, np.nan)
     ok = np.isfinite(fine) & np.isfinite(truth_m)
     assert ok.sum() > SCULPTURE_COVERAGE * np.isfinite(truth_m).sum()
@@ -175,6 +182,7 @@ def test_bad_frames_into_the_single_shot_path(ros_graph):
     assert diagnostics.value("/cnn/cnn_depth", "frames without fringes") == "2"
     assert diagnostics.value("/cnn/cnn_depth", "frames outside the working range") == "1"
     assert any("working range 1000-1350 mm" in m for m in diagnostics.said["/cnn/cnn_depth"])
+    assert diagnostics.value("/cnn/cnn_depth", "frames with surfaces striped like the pattern") == "1"
     assert diagnostics.value("/cnn/cnn_depth", "model sha256", "") != ""
 
 
