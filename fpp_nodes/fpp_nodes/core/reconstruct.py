@@ -415,16 +415,18 @@ def order_surfaces(absolute: np.ndarray, fringes: np.ndarray) -> tuple[np.ndarra
     return labels, np.bincount(labels.ravel(), minlength=count)
 
 
-# The sidebands' window: a Gaussian of this sigma (pixels; 2.7 of the default rig's carrier periods). At
-# 6 px the coarse code's own lobe leaks into the sidebands (0.09 on a plain plane); from 10 px it does not.
-SIDEBAND_WINDOW_PX = 25.0
-SIDEBAND_BLOCK = 4  # the demodulated image is summed over blocks this wide and windowed there: 16x fewer pixels
+# The sidebands are summed over blocks of SIDEBAND_BLOCK pixels (16x fewer to window) and windowed there by a
+# tent SIDEBAND_TENT blocks wide (two boxes, cv2.stackBlur: the same time at any width; variance
+# 2 ((r + 1)^2 - 1) / 12 for a width 2 r + 1: a sigma of 6.1 blocks, 24 pixels, 2.7 of the default rig's
+# carrier periods). A Gaussian of sigma 6 px let the coarse code's own lobe into them (0.09 on a plain
+# plane); from 10 px it did not.
+SIDEBAND_BLOCK, SIDEBAND_TENT = 4, 29
 
 
 def code_sidebands(image: np.ndarray, out: np.ndarray) -> np.ndarray:
     """How much the carrier's amplitude swings with a code grating, per pixel: the image less its local
     mean, demodulated at the carrier's phase plus and minus each code's (the phases out gives: the
-    carrier's numerator and denominator, then each code's), over a window of SIDEBAND_WINDOW_PX, less
+    carrier's numerator and denominator, then each code's), over a window of about 24 pixels, less
     what the carrier's own demodulation times the code's mean phasor over the window explains (where
     the network cannot read a code, in heavy defocus, its phase varies slowly and would carry the
     carrier into the sidebands); the mean of each pair against the carrier's own, the larger over the
@@ -432,20 +434,19 @@ def code_sidebands(image: np.ndarray, out: np.ndarray) -> np.ndarray:
     Projected light only adds, so the composite's gratings make no such sidebands. An albedo multiplies
     all of them: stripes of contrast c laid like a code give (c/4) / (1 - c/2) (0.21 at c = 0.6), and
     add a lobe of 5 times that of the carrier's amplitude where the code is read (the code's own:
-    CODE_AMPLITUDE / CARRIER_AMPLITUDE = 0.75), which moves the code's phase. Computed on blocks of
-    SIDEBAND_BLOCK pixels (fused.demodulated_blocks) and resized back."""
+    CODE_AMPLITUDE / CARRIER_AMPLITUDE = 0.75), which moves the code's phase. Computed on blocks
+    (fused.demodulated_blocks) and resized back."""
     height, width = image.shape
     small = (width // SIDEBAND_BLOCK, height // SIDEBAND_BLOCK)
-    sigma = SIDEBAND_WINDOW_PX / SIDEBAND_BLOCK
 
-    def window(x):
-        return cv2.GaussianBlur(x, (0, 0), sigma)
+    def window(x):  # a tent of two boxes (cv2.stackBlur: the same time at any width) for the Gaussian
+        return cv2.stackBlur(x, (SIDEBAND_TENT, SIDEBAND_TENT))
 
     mean = window(cv2.resize(image.astype(np.float32), small, interpolation=cv2.INTER_AREA))
     light = cv2.subtract(image, cv2.resize(mean, (width, height)), dtype=cv2.CV_32F)
-    carrier, *demodulated = (
-        window(re) + 1j * window(im) for re, im in fused.demodulated_blocks(light, out, SIDEBAND_BLOCK)
-    )
+    sums = fused.demodulated_blocks(light, out, SIDEBAND_BLOCK)  # (planes, 2, rows, cols)
+    sums = window(np.ascontiguousarray(sums.reshape(-1, *sums.shape[2:]).transpose(1, 2, 0)))  # all at once
+    carrier, *demodulated = (sums[..., 2 * i] + 1j * sums[..., 2 * i + 1] for i in range(sums.shape[2] // 2))
     codes = len(demodulated) // 3
     sidebands, phasors = demodulated[: 2 * codes], demodulated[2 * codes :]
     phasors = [p * np.float32(1 / SIDEBAND_BLOCK**2) for p in phasors]  # the window's mean u_k
