@@ -203,13 +203,13 @@ def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: 
         )
         by_sideband = {t: n for (_, _, t, *_), n in parallel_counts(files, model, decoder, grids).items()}
         output = {t: sum(n[0] for n in by_family.values()) for t, by_family in by_sideband.items()}
-        allowed = [t for t in SIDEBAND_GRID if output[t] >= (1 - SIDEBAND_REFUSAL_BUDGET) * output[np.inf]]
+        refused = {t: round(float(1 - output[t] / output[np.inf]) if output[np.inf] else 0.0, 6) for t in SIDEBAND_GRID}
         chosen |= {
-            "max_sideband": float(min(allowed, default=np.inf)),
+            "max_sideband": float(
+                min((t for t in SIDEBAND_GRID if refused[t] <= SIDEBAND_REFUSAL_BUDGET), default=np.inf)
+            ),
             "sideband_refusal_budget": SIDEBAND_REFUSAL_BUDGET,
-            "sidebands": {  # each max_sideband's share of the output it refuses, with the chosen other rules
-                str(t): round(float(1 - output[t] / max(output[np.inf], 1)), 6) for t in SIDEBAND_GRID
-            },
+            "sidebands": {str(t): r for t, r in refused.items()},  # the share of the output each would refuse
         }
     return chosen | {
         "chosen_on": f"{data} val, {len(files)} samples",
