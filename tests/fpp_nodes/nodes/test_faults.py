@@ -142,8 +142,8 @@ def test_bad_frames_into_the_single_shot_path(ros_graph):
     plane = make_scene(rig, "plane", depth_mm=1150)  # its albedo striped as the fine code falls on it
     seen, (fx, fy) = SceneRenderer(rig, plane), patterns.code_frequencies[0]
     code = 2 * np.pi * (fx * seen.xp[seen.crop] / patterns.width + fy * seen.yp[seen.crop] / patterns.height)
-    stripes = Scene(plane.name, plane.depth_mm, plane.albedo * (1 - 0.3 * (1 + np.cos(code))))  # contrast 0.6
-    striped = render(rig, stripes, patterns, np.random.default_rng(3)).images
+    scene = Scene(plane.name, plane.depth_mm, plane.albedo * (1 - 0.3 * (1 + np.cos(code))))  # contrast 0.6
+    striped = render(rig, scene, patterns, np.random.default_rng(3)).images
     inputs.update(
         {
             "dark": numpy_to_image(np.zeros_like(good)),
