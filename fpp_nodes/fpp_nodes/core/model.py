@@ -242,15 +242,14 @@ class DepthModel:
 
 
 def pixel_shuffle(x: np.ndarray, r: int) -> np.ndarray:
-    """torch's PixelShuffle: (C r^2, H, W) -> (C, H r, W r), out[c, h r + i, w r + j] = x[c r^2 + i r + j, h, w],
-    as r^2 strided copies."""
+    """torch's PixelShuffle: (C r^2, H, W) -> (C, H r, W r), out[c, h r + i, w r + j] = x[c r^2 + i r + j, h, w]
+    (cv2.merge interleaves the columns: half the time of strided copies)."""
     c, h, w = x.shape[0] // (r * r), x.shape[1], x.shape[2]
-    out = np.empty((c, h * r, w * r), x.dtype)
-    tiles, groups = out.reshape(c, h, r, w, r), x.reshape(c, r, r, h, w)
-    for i in range(r):
-        for j in range(r):
-            tiles[:, :, i, :, j] = groups[:, i, j]
-    return out
+    out = np.empty((c, h, r, w * r), x.dtype)
+    for k in range(c):
+        for i in range(r):  # row i of each tile: its r columns interleaved
+            out[k, :, i] = cv2.merge([x[(k * r + i) * r + j] for j in range(r)]).reshape(h, w * r)
+    return out.reshape(c, h * r, w * r)
 
 
 def network_input(image: np.ndarray) -> np.ndarray:
@@ -354,15 +353,19 @@ def local_depth(depth: np.ndarray, window: int = ROUGHNESS_WINDOW) -> tuple[np.n
     if not known.any():
         return np.full(depth.shape, np.nan, np.float32), np.full(depth.shape, np.nan, np.float32)
 
-    def window_sum(image):
-        return cv2.boxFilter(image, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    def window_sum(image, ddepth=-1):
+        return cv2.boxFilter(image, ddepth, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
 
-    offset = np.float32(np.mean(depth[known]))  # box sums of small numbers keep float32's precision
-    values = np.where(known, depth - offset, 0).astype(np.float32)
-    per_pixel = np.float32(1) / np.maximum(window_sum(known.astype(np.float32)), 1)
+    mask = known.view(np.uint8)
+    offset = np.float32(cv2.mean(depth, mask)[0])  # box sums of small numbers keep float32's precision
+    values = cv2.patchNaNs(depth - offset, 0)  # no weight in the sums
+    per_pixel = np.float32(1) / np.maximum(window_sum(mask, cv2.CV_32F), 1)
     mean = window_sum(values) * per_pixel
-    residual = np.where(known, values - mean, 0)
-    roughness = np.sqrt(np.maximum(window_sum(np.square(residual)) * per_pixel, 0))  # a box sum can dip below 0
+    residual = cv2.subtract(values, mean)
+    residual[~known] = 0
+    roughness = np.sqrt(
+        np.maximum(window_sum(cv2.multiply(residual, residual)) * per_pixel, 0)
+    )  # a box sum can dip below 0
     mean += offset
     mean[~known] = np.nan
     roughness[~known] = np.nan

@@ -391,8 +391,8 @@ class CompositeDecoder:
         share[size < self.min_surface_px] = 0
         self.striped = 0.0
         if image is not None and np.isfinite(self.max_sideband):
-            sidebands = (code_sidebands(image, out) >= self.max_sideband).ravel()
-            striped = np.bincount(surface.ravel(), weights=sidebands, minlength=size.size) > size / 2
+            sidebands = code_sidebands(image, out) >= self.max_sideband
+            striped = np.bincount(surface[sidebands], minlength=size.size) > size / 2
             striped &= share > 0  # on a surface (not label 0) whose vote counts
             share[striped] = 0
             self.striped = float(np.sum(size[striped])) / max(shown, 1)
