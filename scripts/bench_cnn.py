@@ -8,7 +8,8 @@ the node runs on a frame: scale, pad, run the network, decode, mask untrusted pi
 --threads; the node in its own process with its own defaults (the network on one core, decoding the
 frame before on the other), fed by this script first as fast as it takes frames (it keeps only the
 newest: its most frames/s), then as a 30 frames/s camera (does it keep up?), timed from each frame's
-stamp to its depth image arriving here.
+stamp to its depth image arriving here; with the node process's CPU time (user and system) and page
+faults per frame back, from /proc (Linux).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -43,6 +45,21 @@ def timed(fn, n):
         fn()
         times.append(time.perf_counter() - t)
     return np.array(times) * 1000
+
+
+def process_times(pid: int) -> np.ndarray:
+    """(user s, system s, minor page faults) of a process and its descendants so far (a stock `ros2 run`
+    starts the node as its child), from /proc; zeros where it cannot be read."""
+    ticks, total, todo = os.sysconf("SC_CLK_TCK"), np.zeros(3), [pid]
+    while todo:
+        proc = Path(f"/proc/{todo.pop()}")
+        try:
+            fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()  # from field 3, the state
+            todo += [int(c) for task in (proc / "task").iterdir() for c in (task / "children").read_text().split()]
+        except (OSError, ValueError):
+            continue
+        total += [int(fields[11]) / ticks, int(fields[12]) / ticks, int(fields[7])]
+    return total
 
 
 def feed(robot, pub, image, seconds, rate, arrivals):
@@ -110,7 +127,10 @@ def main():
         while pub.get_subscription_count() == 0 or robot.count_subscribers(Topics.CAMERA_IMAGE) == 0:
             rclpy.spin_once(robot, timeout_sec=0.1)
         time.sleep(1.0)
-        runs = {rate: feed(robot, pub, image, args.seconds, rate, arrivals) for rate in (0, CAMERA_RATE)}
+        runs = {}
+        for rate in (0, CAMERA_RATE):
+            before = process_times(node_proc.pid)
+            runs[rate] = (*feed(robot, pub, image, args.seconds, rate, arrivals), process_times(node_proc.pid) - before)
     finally:
         stop_process(node_proc, timeout=15)
         robot.destroy_node()
@@ -138,12 +158,17 @@ def main():
         f"{'DepthModel (+ decode, mask untrusted)':44} {np.median(full):7.1f} {np.percentile(full, 95):7.1f} "
         f"{1000 / np.median(full):9.1f}"
     )
-    for rate, (sent, elapsed, lat) in runs.items():
+    for rate, (sent, elapsed, lat, _) in runs.items():
         fed = f"{rate} frames/s camera" if rate else "frames as fast as it takes"
         print(
             f"{'cnn_depth node, ' + fed:44} {np.median(lat):7.1f} {np.percentile(lat, 95):7.1f} "
             f"{len(lat) / elapsed:9.1f}   sent {sent}, back {len(lat)}"
         )
+    print("\nnode process, a frame back:       user ms  system ms  page faults")
+    for rate, (_, _, lat, (user, system, faults)) in runs.items():
+        frames = max(len(lat), 1)
+        fed = f"{rate} frames/s camera" if rate else "as fast as it takes"
+        print(f"{fed:32} {1000 * user / frames:8.1f} {1000 * system / frames:10.1f} {faults / frames:12.0f}")
     print(
         "\nnode: stamp to depth image here; it keeps the newest frame, so frames not back were dropped, not "
         f"queued. Node latency at {CAMERA_RATE} frames/s / bare session: "
