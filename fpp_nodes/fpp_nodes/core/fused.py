@@ -261,29 +261,45 @@ def demodulated_blocks(image, phasors, factor):
     sums = np.empty((planes, 2, rows, cols), np.float32)
     rows_sum = np.empty((planes, 2, width), np.float32)
     re, im = np.empty((count, width), np.float32), np.empty((count, width), np.float32)
+    tiny = np.float32(1e-12)
+    # One accumulator a loop: the compiler cannot tell rows of rows_sum apart, so a loop storing to
+    # several ran scalar, twice as slow.
     for block in range(rows):
         rows_sum[:] = 0
         for r in range(block * factor, (block + 1) * factor):
-            for k in range(count):
+            for k in range(count):  # unit phasors
+                sines, cosines, re_k, im_k = phasors[2 * k, r], phasors[2 * k + 1, r], re[k], im[k]
                 for c in range(width):
-                    s, co = phasors[2 * k, r, c], phasors[2 * k + 1, r, c]
-                    scale = np.float32(1) / math.sqrt(s * s + co * co + np.float32(1e-12))
-                    re[k, c] = co * scale
-                    im[k, c] = s * scale
-            value, acc = image[r], rows_sum[0]
+                    scale = np.float32(1) / np.sqrt(sines[c] * sines[c] + cosines[c] * cosines[c] + tiny)
+                    re_k[c] = cosines[c] * scale
+                    im_k[c] = sines[c] * scale
+            value, re_0, im_0 = image[r], re[0], im[0]
+            total = rows_sum[0, 0]  # e = conj(u_0)
             for c in range(width):
-                acc[0, c] += value[c] * re[0, c]
-                acc[1, c] -= value[c] * im[0, c]
+                total[c] += value[c] * re_0[c]
+            total = rows_sum[0, 1]
+            for c in range(width):
+                total[c] -= value[c] * im_0[c]
             for k in range(1, count):
-                plus, minus, code = rows_sum[2 * k - 1], rows_sum[2 * k], rows_sum[2 * count - 2 + k]
+                re_k, im_k = re[k], im[k]
+                total = rows_sum[2 * k - 1, 0]  # e u_k: carrier - code
                 for c in range(width):
-                    code[0, c] += re[k, c]
-                    code[1, c] += im[k, c]
-                    er, ei, ur, ui = re[0, c], -im[0, c], re[k, c], im[k, c]
-                    plus[0, c] += value[c] * (er * ur - ei * ui)  # e u_k: carrier - code
-                    plus[1, c] += value[c] * (er * ui + ei * ur)
-                    minus[0, c] += value[c] * (er * ur + ei * ui)  # e conj(u_k): carrier + code
-                    minus[1, c] += value[c] * (ei * ur - er * ui)
+                    total[c] += value[c] * (re_0[c] * re_k[c] + im_0[c] * im_k[c])
+                total = rows_sum[2 * k - 1, 1]
+                for c in range(width):
+                    total[c] += value[c] * (re_0[c] * im_k[c] - im_0[c] * re_k[c])
+                total = rows_sum[2 * k, 0]  # e conj(u_k): carrier + code
+                for c in range(width):
+                    total[c] += value[c] * (re_0[c] * re_k[c] - im_0[c] * im_k[c])
+                total = rows_sum[2 * k, 1]
+                for c in range(width):
+                    total[c] -= value[c] * (im_0[c] * re_k[c] + re_0[c] * im_k[c])
+                total = rows_sum[2 * count - 2 + k, 0]  # u_k itself
+                for c in range(width):
+                    total[c] += re_k[c]
+                total = rows_sum[2 * count - 2 + k, 1]
+                for c in range(width):
+                    total[c] += im_k[c]
         for d in range(planes):
             for j in range(2):
                 row, out = rows_sum[d, j], sums[d, j, block]
