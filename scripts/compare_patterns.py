@@ -19,6 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
+from fpp_nodes.core.patterns import composite_phases
 from fpp_nodes.core.phase import ftp_wrapped_phase
 from fpp_nodes.core.reconstruct import CompositeDecoder, composite_ftp_phases
 from fpp_nodes.core.scenes import plane_scene
@@ -58,15 +59,14 @@ def main():
     )
     composite = calibration.patterns
     decoder = CompositeDecoder(calibration)
-    base, frequencies = Rig(), composite.code_frequencies
+    base = Rig()
     rows = []
     for name, rig, scene in conditions(base):
         renderer = SceneRenderer(rig, scene)
         xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
         inner = np.zeros(xp.shape, bool)
         inner[BORDER:-BORDER, BORDER:-BORDER] = renderer.lit[renderer.crop][BORDER:-BORDER, BORDER:-BORDER]
-        carrier = 2 * np.pi * composite.frequencies[-1] * xp / composite.width
-        codes = [2 * np.pi * (fx * xp / composite.width + fy * yp / composite.height) for fx, fy in frequencies]
+        carrier, *codes = composite_phases(composite, xp, yp)
         images = render(rig, scene, composite, np.random.default_rng(1)).images  # the patterns stay the 2.2 set
         mm_per_rad = np.abs(
             calibration.model.depth_per_radian(carrier, *np.meshgrid(np.arange(rig.width), np.arange(rig.height)))

@@ -28,6 +28,7 @@ import numpy as np
 
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import DepthModel, default_model_path
+from fpp_nodes.core.patterns import composite_phases
 from fpp_nodes.core.scenes import make_scene
 from fpp_nodes.core.simulation import Rig, Scene, SceneRenderer, render
 from fpp_nodes.core.workflow import simulated_calibration
@@ -51,8 +52,7 @@ def grating(contrast: float, which: int):
     """Texture: stripes where the composite's grating which (0 the carrier, 1.. its codes) falls on the surface."""
 
     def texture(rng, patterns, xp, yp):
-        fx, fy = [(patterns.frequencies[-1], 0.0), *patterns.code_frequencies][which]
-        phase = 2 * np.pi * (fx * xp / patterns.width + fy * yp / patterns.height) + rng.uniform(0, 2 * np.pi)
+        phase = composite_phases(patterns, xp, yp)[which] + rng.uniform(0, 2 * np.pi)
         return 1 - contrast * 0.5 * (1 + np.cos(phase))
 
     return texture

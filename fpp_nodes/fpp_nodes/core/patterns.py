@@ -172,13 +172,19 @@ def pattern_dtype(p: PatternSet):
     return np.uint8 if p.bit_depth == 8 else np.uint16
 
 
+def composite_phases(p: PatternSet, xp, yp) -> list[np.ndarray]:
+    """The phases of the composite's gratings at projector pixel coordinates (xp, yp), fractional
+    or not (where a surface point lands, in a simulation): the carrier's first, then each code's."""
+    x, y = np.asarray(xp, np.float64) / p.width, np.asarray(yp, np.float64) / p.height
+    return [2.0 * np.pi * (fx * x + fy * y) for fx, fy in [(p.frequencies[-1], 0.0), *p.code_frequencies]]
+
+
 def composite_pattern(p: PatternSet) -> np.ndarray:
     """The composite single-shot pattern (module docstring), height x width, quantized like the others."""
-    x = np.arange(p.width, dtype=np.float64)[None, :] / p.width
-    y = np.arange(p.height, dtype=np.float64)[:, None] / p.height
-    radiance = 0.5 + 0.5 * CARRIER_AMPLITUDE * np.cos(2.0 * np.pi * p.frequencies[-1] * x)
-    for fx, fy in p.code_frequencies:
-        radiance = radiance + 0.5 * CODE_AMPLITUDE * np.cos(2.0 * np.pi * (fx * x + fy * y))
+    carrier, *codes = composite_phases(p, np.arange(p.width)[None, :], np.arange(p.height)[:, None])
+    radiance = 0.5 + 0.5 * CARRIER_AMPLITUDE * np.cos(carrier)
+    for code in codes:
+        radiance = radiance + 0.5 * CODE_AMPLITUDE * np.cos(code)
     return np.round(p.max_value * radiance ** (1.0 / p.gamma)).astype(pattern_dtype(p))
 
 

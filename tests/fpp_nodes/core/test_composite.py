@@ -7,7 +7,7 @@ import pytest
 
 from fpp_nodes.core.calibration import Calibration, CalibrationError
 from fpp_nodes.core.model import local_depth, refusal_margin
-from fpp_nodes.core.patterns import COMPOSITE_CODES, composite_pattern
+from fpp_nodes.core.patterns import COMPOSITE_CODES, composite_pattern, composite_phases
 from fpp_nodes.core.phase import PhaseError
 from fpp_nodes.core.reconstruct import CompositeDecoder, code_sidebands, order_surfaces
 from fpp_nodes.core.scenes import FAMILY_NAMES, SURFACE_DEPTH_MM, make_scene, plane_scene
@@ -17,9 +17,7 @@ from fpp_nodes.core.workflow import simulated_calibration, wrong_order_mm
 
 def exact_phases(renderer, patterns):
     """Carrier and each code's phase at every pixel, from where its surface point lands in the projector."""
-    xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
-    carrier = 2 * np.pi * patterns.frequencies[-1] * xp / patterns.width
-    codes = [2 * np.pi * (fx * xp / patterns.width + fy * yp / patterns.height) for fx, fy in patterns.code_frequencies]
+    carrier, *codes = composite_phases(patterns, renderer.xp[renderer.crop], renderer.yp[renderer.crop])
     return carrier, codes
 
 

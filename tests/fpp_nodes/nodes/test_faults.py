@@ -21,7 +21,7 @@ from std_msgs.msg import String
 from fpp_msgs_py import Frames, Qos, Topics, cloud_to_xyz, header_at, image_to_numpy, numpy_to_image, stamp_ns
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.model import default_model_path
-from fpp_nodes.core.patterns import pattern_images
+from fpp_nodes.core.patterns import composite_phases, pattern_images
 from fpp_nodes.core.scenes import make_scene
 from fpp_nodes.core.sequence import ShownPatterns
 from fpp_nodes.core.simulation import Rig, Scene, SceneRenderer, render
@@ -140,8 +140,8 @@ def test_bad_frames_into_the_single_shot_path(ros_graph):
     rig = Rig()
     far = render(rig, make_scene(rig, "plane", depth_mm=1420), patterns, np.random.default_rng(3)).images
     plane = make_scene(rig, "plane", depth_mm=1150)  # its albedo striped as the fine code falls on it
-    seen, (fx, fy) = SceneRenderer(rig, plane), patterns.code_frequencies[0]
-    code = 2 * np.pi * (fx * seen.xp[seen.crop] / patterns.width + fy * seen.yp[seen.crop] / patterns.height)
+    seen = SceneRenderer(rig, plane)
+    code = composite_phases(patterns, seen.xp[seen.crop], seen.yp[seen.crop])[1]
     scene = Scene(plane.name, plane.depth_mm, plane.albedo * (1 - 0.3 * (1 + np.cos(code))))  # contrast 0.6
     striped = render(rig, scene, patterns, np.random.default_rng(3)).images
     inputs.update(
