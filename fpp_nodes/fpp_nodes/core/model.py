@@ -363,9 +363,8 @@ def local_depth(depth: np.ndarray, window: int = ROUGHNESS_WINDOW) -> tuple[np.n
     mean = window_sum(values) * per_pixel
     residual = cv2.subtract(values, mean)
     residual[~known] = 0
-    roughness = np.sqrt(
-        np.maximum(window_sum(cv2.multiply(residual, residual)) * per_pixel, 0)
-    )  # a box sum can dip below 0
+    squares = window_sum(cv2.multiply(residual, residual))
+    roughness = np.sqrt(np.maximum(squares * per_pixel, 0))  # a box sum can dip below 0
     mean += offset
     mean[~known] = np.nan
     roughness[~known] = np.nan
