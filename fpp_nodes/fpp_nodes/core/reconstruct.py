@@ -220,6 +220,9 @@ BAND_HALO = 8
 # The composite's confidence is a vote over this window (pixels): on the composite set's validation
 # split 9 gave the most coverage within 0.5% silent errors (15 a little less, 5 let more errors through).
 VOTE_WINDOW = 9
+# The decoder's diagnostics of its rig (min_separation, row_fit_error) look at every GRID_STEP-th pixel
+# of every GRID_STEP-th row: both vary smoothly across the image.
+GRID_STEP = 8
 
 
 class CompositeDecoder:
@@ -230,12 +233,12 @@ class CompositeDecoder:
     range (with equal slack at both ends; K the coarsest code's orders). A code's phase is
     its row phase plus the absolute carrier phase / K_i, so each candidate order predicts it about
     2 pi / K_i from the next. Across the candidates the row phase drifts (the projector row a pixel
-    sees moves with depth) almost linearly in the carrier phase: fitted so per pixel (within a few
-    1e-3 rad in the default rig), each pixel's order follows in closed form (code_phase), coarse code
-    first, as temporal unwrapping does with frequencies.
+    sees moves with depth) almost linearly in the carrier phase: fitted so per pixel (row_fit_error:
+    within a few 1e-3 rad in the default rig), each pixel's order follows in closed form (code_phase),
+    coarse code first, as temporal unwrapping does with frequencies.
     min_separation is how close the codes of two orders of the working range come on this rig (rad,
-    the root sum of squares over the codes, over a grid of pixels): the margin every decision has is
-    about half of it.
+    the root sum of squares over the codes): the margin every decision has is about half of it. Both
+    are taken on a grid of pixels (GRID_STEP).
 
     One pixel's code is noisy; a surface's is not: its absolute phase is smooth, and a wrong order is
     2 pi off. A pixel keeps its order only where it is the order nearest the median phase of the 5 x 5
@@ -283,13 +286,18 @@ class CompositeDecoder:
         self.code_order = sorted(range(len(COMPOSITE_CODES)), key=lambda i: -COMPOSITE_CODES[i][0])  # coarse first
         terms, self.row_fit_error = [], 0.0  # per code in code_order: (intercept, rate, spacing)
         row = self._rows(calibration, u, v)
+        grid = self._rows(calibration, *(np.broadcast_to(a, cam.shape)[::GRID_STEP, ::GRID_STEP] for a in (u, v)))
         for i in self.code_order:
-            rows = [row(i, middle + TWO_PI * k) for k in t]
-            slope = sum(k * r for k, r in zip(t, rows)) / (np.sum(t * t) * TWO_PI)
-            intercept = sum(rows) / len(rows) - slope * middle
+            total = moment = 0.0  # running sums, not every order's map at once (67 of them: 160 MB)
+            for k in t:
+                r = row(i, middle + TWO_PI * k)
+                total, moment = total + r, moment + k * r
+            slope = moment / (np.sum(t * t) * TWO_PI)
+            intercept = total / len(t) - slope * middle
+            a, b, m = (x[::GRID_STEP, ::GRID_STEP] for x in (intercept, slope, middle))  # the fit's error on the grid
             self.row_fit_error = max(
                 self.row_fit_error,
-                *(float(np.abs(intercept + slope * (middle + TWO_PI * k) - r).max()) for k, r in zip(t, rows)),
+                *(float(np.abs(a + b * (m + TWO_PI * k) - grid(i, m + TWO_PI * k)).max()) for k in t),
             )
             rate = slope + 1 / COMPOSITE_CODES[i][0]  # d(predicted code) / d(carrier phase)
             terms.append((intercept, rate, TWO_PI * rate))
@@ -320,7 +328,7 @@ class CompositeDecoder:
         carrier, rows = calibration.model.at(u, v), calibration.code_row_phases(u, v)
         return lambda code, phase: rows(code, carrier.depth(phase))
 
-    def _separation(self, calibration: Calibration, ends, u, v, step: int = 8) -> float:
+    def _separation(self, calibration: Calibration, ends, u, v, step: int = GRID_STEP) -> float:
         """How close the codes of two orders in the working range come, over every step-th pixel (rad,
         the root sum of squares of each code's difference)."""
         u, v = (np.broadcast_to(a, ends[0].shape)[::step, ::step] for a in (u, v))  # a lens: full maps
