@@ -9,7 +9,7 @@ the node runs on a frame: scale, pad, run the network, decode, mask untrusted pi
 frame before on the other), fed by this script first as fast as it takes frames (it keeps only the
 newest: its most frames/s), then as a 30 frames/s camera (does it keep up?), timed from each frame's
 stamp to its depth image arriving here; with the node process's CPU time (user and system) and page
-faults per frame back, from /proc (Linux).
+faults per frame back, and its resident memory at the end, from /proc (Linux).
 """
 
 from __future__ import annotations
@@ -47,19 +47,41 @@ def timed(fn, n):
     return np.array(times) * 1000
 
 
-def process_times(pid: int) -> np.ndarray:
-    """(user s, system s, minor page faults) of a process and its descendants so far (a stock `ros2 run`
-    starts the node as its child), from /proc; zeros where it cannot be read."""
-    ticks, total, todo = os.sysconf("SC_CLK_TCK"), np.zeros(3), [pid]
+def process_tree(pid: int) -> list[Path]:
+    """/proc of a process and its descendants (a stock `ros2 run` starts the node as its child); those
+    that cannot be read are left out."""
+    procs, todo = [], [pid]
     while todo:
         proc = Path(f"/proc/{todo.pop()}")
         try:
-            fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()  # from field 3, the state
             todo += [int(c) for task in (proc / "task").iterdir() for c in (task / "children").read_text().split()]
         except (OSError, ValueError):
             continue
+        procs.append(proc)
+    return procs
+
+
+def process_times(pid: int) -> np.ndarray:
+    """(user s, system s, minor page faults) of a process and its descendants so far."""
+    ticks, total = os.sysconf("SC_CLK_TCK"), np.zeros(3)
+    for proc in process_tree(pid):
+        try:
+            fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()  # from field 3, the state
+        except OSError:
+            continue
         total += [int(fields[11]) / ticks, int(fields[12]) / ticks, int(fields[7])]
     return total
+
+
+def resident_mb(pid: int) -> float:
+    """Resident memory (VmRSS) of a process and its descendants, MB."""
+    total = 0
+    for proc in process_tree(pid):
+        try:
+            total += int(next(line for line in (proc / "status").open() if line.startswith("VmRSS:")).split()[1])
+        except (OSError, StopIteration):
+            continue
+    return total / 1024
 
 
 def feed(robot, pub, image, seconds, rate, arrivals):
@@ -131,6 +153,7 @@ def main():
         for rate in (0, CAMERA_RATE):
             before = process_times(node_proc.pid)
             runs[rate] = (*feed(robot, pub, image, args.seconds, rate, arrivals), process_times(node_proc.pid) - before)
+        resident = resident_mb(node_proc.pid)
     finally:
         stop_process(node_proc, timeout=15)
         robot.destroy_node()
@@ -169,6 +192,7 @@ def main():
         frames = max(len(lat), 1)
         fed = f"{rate} frames/s camera" if rate else "as fast as it takes"
         print(f"{fed:32} {1000 * user / frames:8.1f} {1000 * system / frames:10.1f} {faults / frames:12.0f}")
+    print(f"node process resident memory at the end: {resident:.0f} MB")
     print(
         "\nnode: stamp to depth image here; it keeps the newest frame, so frames not back were dropped, not "
         f"queued. Node latency at {CAMERA_RATE} frames/s / bare session: "
