@@ -286,7 +286,8 @@ class CompositeDecoder:
         self.code_order = sorted(range(len(COMPOSITE_CODES)), key=lambda i: -COMPOSITE_CODES[i][0])  # coarse first
         terms, self.row_fit_error = [], 0.0  # per code in code_order: (intercept, rate, spacing)
         row = self._rows(calibration, u, v)
-        grid = self._rows(calibration, *(np.broadcast_to(a, cam.shape)[::GRID_STEP, ::GRID_STEP] for a in (u, v)))
+        on_grid = (slice(None, None, GRID_STEP),) * 2
+        grid = self._rows(calibration, *(np.broadcast_to(a, cam.shape)[on_grid] for a in (u, v)))  # a lens: full maps
         for i in self.code_order:
             total = moment = 0.0  # running sums, not every order's map at once (67 of them: 160 MB)
             for k in t:
@@ -294,7 +295,7 @@ class CompositeDecoder:
                 total, moment = total + r, moment + k * r
             slope = moment / (np.sum(t * t) * TWO_PI)
             intercept = total / len(t) - slope * middle
-            a, b, m = (x[::GRID_STEP, ::GRID_STEP] for x in (intercept, slope, middle))  # the fit's error on the grid
+            a, b, m = (x[on_grid] for x in (intercept, slope, middle))  # the fit's error on the grid
             self.row_fit_error = max(
                 self.row_fit_error,
                 *(float(np.abs(a + b * (m + TWO_PI * k) - grid(i, m + TWO_PI * k)).max()) for k in t),
@@ -306,7 +307,7 @@ class CompositeDecoder:
         # the candidates' phases: inside the working range, with half an order to spare at each end
         self.low = (np.minimum(ends[0], ends[1]) - np.pi).astype(np.float32)
         self.high = (np.maximum(ends[0], ends[1]) + np.pi).astype(np.float32)
-        self.min_separation = self._separation(calibration, ends, u, v)
+        self.min_separation = self._separation(grid, *(e[on_grid] for e in ends))
         self.terms = depth_terms(calibration)
         # the phases' 5 x 5 median in 16 bits, a third of float32's time: every phase the median sees
         # (0 where no fringes, a turn either side of the range) in 65536 steps (about 0.01 rad)
@@ -328,13 +329,13 @@ class CompositeDecoder:
         carrier, rows = calibration.model.at(u, v), calibration.code_row_phases(u, v)
         return lambda code, phase: rows(code, carrier.depth(phase))
 
-    def _separation(self, calibration: Calibration, ends, u, v, step: int = GRID_STEP) -> float:
-        """How close the codes of two orders in the working range come, over every step-th pixel (rad,
-        the root sum of squares of each code's difference)."""
-        u, v = (np.broadcast_to(a, ends[0].shape)[::step, ::step] for a in (u, v))  # a lens: full maps
-        lo = np.minimum(ends[0], ends[1])[::step, ::step]
-        hi = np.maximum(ends[0], ends[1])[::step, ::step]
-        codes, inside, row = [], [], self._rows(calibration, u, v)
+    @staticmethod
+    def _separation(row, near, far) -> float:
+        """How close the codes of two orders in the working range come at some pixels (rad, the root sum
+        of squares of each code's difference): row, their row phases (_rows); near and far, the phases
+        the working range's ends give them."""
+        lo, hi = np.minimum(near, far), np.maximum(near, far)
+        codes, inside = [], []
         for k in range(int(np.ceil((hi - lo).max() / TWO_PI)) + 1):
             phase = lo + TWO_PI * k
             codes.append([row(i, phase) + phase / n for i, (n, _) in enumerate(COMPOSITE_CODES)])
