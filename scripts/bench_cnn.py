@@ -33,6 +33,7 @@ from fpp_nodes.core.simulation import Rig, render
 from fpp_nodes.processes import start_process, stop_process
 
 from machine import describe
+from streamkit import rss_mb
 
 CAMERA_RATE = 30  # frames/s: the issue's target, a common camera's rate
 
@@ -75,13 +76,7 @@ def process_times(pid: int) -> np.ndarray:
 
 def resident_mb(pid: int) -> float:
     """Resident memory (VmRSS) of a process and its descendants, MB."""
-    total = 0
-    for proc in process_tree(pid):
-        try:
-            total += int(next(line for line in (proc / "status").open() if line.startswith("VmRSS:")).split()[1])
-        except (OSError, StopIteration):
-            continue
-    return total / 1024
+    return sum(rss_mb(int(proc.name)) or 0.0 for proc in process_tree(pid))
 
 
 def feed(robot, pub, image, seconds, rate, arrivals):
