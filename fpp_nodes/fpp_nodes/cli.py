@@ -219,9 +219,7 @@ def _reconstruct(
 
         model = DepthModel(model_path or default_model_path(), calibration=calibration)  # depth from this rig
         depth, confidence = model.infer(images[index])
-        if warning := model.range_warning():
-            print(f"warning: {warning}", file=sys.stderr)
-        if warning := model.stripes_warning():
+        for warning in model.warnings().values():
             print(f"warning: {warning}", file=sys.stderr)
         quality = confidence if confidence is not None else np.isfinite(depth).astype(np.float32)
         return Reconstruction(

@@ -162,28 +162,23 @@ class DepthModel:
         # what the network reads: the image at 1/downsample, or resampled to the trained fringe period
         self.input_size = tuple(round(n * scale) // self.downsample for n in size)
 
-    def range_warning(self) -> str | None:
-        """After a frame of a composite model: what to say where most of its pixels with fringes named no
-        order of the working range (CompositeDecoder.outside_range); None otherwise."""
-        outside = getattr(self.decoder, "outside_range", 0.0)
-        if outside <= MOSTLY_OUTSIDE:
-            return None
-        near, far = (self.calibration or self.card_calibration).working_range_mm
-        return (
-            f"the codes of {outside:.0%} of the pixels with fringes name no order of the working range "
-            f"{near:g}-{far:g} mm: is the scene nearer or farther?"
-        )
-
-    def stripes_warning(self) -> str | None:
-        """After a frame of a composite model: what to say where it refused surfaces for an albedo striped
-        like the pattern's code gratings (CompositeDecoder.striped); None otherwise."""
-        striped = getattr(self.decoder, "striped", 0.0)
-        if not striped:
-            return None
-        return (
-            f"{striped:.1%} of the pixels with fringes lie on surfaces striped like the pattern's code gratings: "
-            "one image cannot tell their fringe order (the multi-shot path measures them)"
-        )
+    def warnings(self) -> dict[str, str]:
+        """After a frame of a composite model: {what the frame was: what to say} where most of its pixels
+        with fringes named no order of the working range (CompositeDecoder.outside_range), and where it
+        refused surfaces for an albedo striped like the pattern's code gratings (CompositeDecoder.striped)."""
+        said = {}
+        if (outside := getattr(self.decoder, "outside_range", 0.0)) > MOSTLY_OUTSIDE:
+            near, far = (self.calibration or self.card_calibration).working_range_mm
+            said["frames outside the working range"] = (
+                f"the codes of {outside:.0%} of the pixels with fringes name no order of the working range "
+                f"{near:g}-{far:g} mm: is the scene nearer or farther?"
+            )
+        if striped := getattr(self.decoder, "striped", 0.0):
+            said["frames with surfaces striped like the pattern"] = (
+                f"{striped:.1%} of the pixels with fringes lie on surfaces striped like the pattern's code "
+                "gratings: one image cannot tell their fringe order (the multi-shot path measures them)"
+            )
+        return said
 
     def check(self, image: np.ndarray) -> None:
         if image.ndim != 2 or (image.shape[1], image.shape[0]) != self.size:

@@ -158,10 +158,8 @@ class CnnDepth(Node):
         outside = getattr(self.model.decoder, "outside_range", None)  # a composite model's
         if outside is not None:
             self.health.fact("fringes outside the working range (last)", f"{outside:.1%}")
-        if warning := self.model.range_warning():
-            self.health.report("frames outside the working range", warning)
-        if warning := self.model.stripes_warning():
-            self.health.report("frames with surfaces striped like the pattern", warning)
+        for frames, warning in self.model.warnings().items():
+            self.health.report(frames, warning)
 
     def destroy_node(self):
         if self.decoder_thread.is_alive():
