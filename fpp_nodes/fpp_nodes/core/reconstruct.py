@@ -223,6 +223,9 @@ VOTE_WINDOW = 9
 # The decoder's diagnostics of its rig (min_separation, row_fit_error) look at every GRID_STEP-th pixel
 # of every GRID_STEP-th row: both vary smoothly across the image.
 GRID_STEP = 8
+# A pixel whose codes name no order takes its neighbourhood's where this share of the VOTE_WINDOW keeps its
+# own (CompositeDecoder; without it, rim pixels of a surface outside the range entered the roughness windows).
+ADOPTION_VOTE = 0.75
 
 
 class CompositeDecoder:
@@ -248,9 +251,12 @@ class CompositeDecoder:
     than pi) that do; a surface smaller than min_surface_px, or a pixel beside a step, has none. A
     patch of wrong orders inside a surface is cut off by the 2 pi steps around it and judged on its own
     codes; a wrong patch whose codes agree with it needs min_surface_px of them.
-    Depth is NaN where a pixel does not keep its order, below min_confidence, where the image shows
-    no fringes and where its codes name an order outside the working range (the nearest order inside
-    would be wrong): the decoder never adopts an order a pixel's own code did not give.
+    A pixel whose codes name no order at all (too noisy to fit any candidate within the margin) takes
+    the order nearest its neighbourhood's median phase where that lies in the working range and at
+    least ADOPTION_VOTE of the VOTE_WINDOW keeps its own; it adds nothing to the votes. Depth is NaN
+    where a pixel's own codes name another order than its neighbourhood's, below min_confidence, where
+    the image shows no fringes and where the order lies outside the working range (the nearest order
+    inside would be wrong).
     An albedo striped like a code grating moves that code's phase over the whole stripes, and the
     surface's codes then agree on a wrong order. Given the image, a surface more than half of whose
     pixels show code sidebands (code_sidebands) of at least max_sideband has confidence 0.
@@ -393,7 +399,9 @@ class CompositeDecoder:
             local = carrier + two_pi * np.rint((self.median(local) - carrier) / two_pi)
         agree = (np.abs(own - local) < np.pi) & ordered
         vote = cv2.boxFilter(agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW), borderType=cv2.BORDER_REPLICATE)
-        surface, size = order_surfaces(local, ordered)
+        # codes too noisy to name any order (not a contradicting one): the neighbourhood's, inside the range
+        adopted = fringes & ~ordered & (local >= self.low) & (local <= self.high) & (vote >= ADOPTION_VOTE)
+        surface, size = order_surfaces(local, ordered | adopted)
         agreeing = np.bincount((surface * agree).ravel(), minlength=size.size)  # disagreeing: label 0
         share = (agreeing / np.maximum(size, 1)).astype(np.float32)
         share[0] = 0  # label 0: beside a step, on no surface
@@ -408,8 +416,9 @@ class CompositeDecoder:
         confidence = np.minimum(vote, np.take(share, surface))
         np.copyto(confidence, np.float32(np.nan), where=~fringes)
         ca, cb, da, db = self.terms
-        depth = (ca + cb * own) / (da + db * own)
-        np.copyto(depth, np.float32(np.nan), where=~(agree & (confidence >= min_confidence)))
+        phase = np.where(adopted, local, own)
+        depth = (ca + cb * phase) / (da + db * phase)
+        np.copyto(depth, np.float32(np.nan), where=~((agree | adopted) & (confidence >= min_confidence)))
         return depth, confidence
 
 
