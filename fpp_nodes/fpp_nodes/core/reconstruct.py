@@ -248,12 +248,14 @@ class CompositeDecoder:
     pixels around it (taken twice). Its confidence is the lesser of two votes: the share of the
     pixels in the VOTE_WINDOW around it that keep their order so, and the share of its surface's
     (order_surfaces: the pixels joined to it through neighbours whose absolute phases differ by less
-    than pi) that do; a surface smaller than min_surface_px, or a pixel beside a step, has none. A
-    patch of wrong orders inside a surface is cut off by the 2 pi steps around it and judged on its own
-    codes; a wrong patch whose codes agree with it needs min_surface_px of them.
+    than pi) that do; a surface with fewer than min_surface_px pixels whose codes name an order, or a
+    pixel beside a step, has none. A patch of wrong orders inside a surface is cut off by the 2 pi
+    steps around it and judged on its own codes; a wrong patch whose codes agree with it needs
+    min_surface_px of them.
     A pixel whose codes name no order at all (too noisy to fit any candidate within the margin) takes
     the order nearest its neighbourhood's median phase where that lies in the working range and at
-    least ADOPTION_VOTE of the VOTE_WINDOW keeps its own; it adds nothing to the votes. Depth is NaN
+    least ADOPTION_VOTE of the VOTE_WINDOW keeps its own; it adds nothing to the votes, nor to its
+    surface's size. Depth is NaN
     where a pixel's own codes name another order than its neighbourhood's, below min_confidence, where
     the image shows no fringes and where the order lies outside the working range (the nearest order
     inside would be wrong).
@@ -400,12 +402,19 @@ class CompositeDecoder:
         agree = (np.abs(own - local) < np.pi) & ordered
         vote = cv2.boxFilter(agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW), borderType=cv2.BORDER_REPLICATE)
         # codes too noisy to name any order (not a contradicting one): the neighbourhood's, inside the range
-        adopted = fringes & ~ordered & (local >= self.low) & (local <= self.high) & (vote >= ADOPTION_VOTE)
-        surface, size = order_surfaces(local, ordered | adopted)
+        unsure = np.flatnonzero(fringes & ~ordered)  # a few: indices, not whole-image passes
+        order = local.ravel()[unsure]
+        adopt = (order >= self.low.ravel()[unsure]) & (order <= self.high.ravel()[unsure])
+        adopted = unsure[adopt & (vote.ravel()[unsure] >= ADOPTION_VOTE)]
+        np.put(own, adopted, local.ravel()[adopted])
+        np.put(ordered, adopted, True)
+        surface, size = order_surfaces(local, ordered)
         agreeing = np.bincount((surface * agree).ravel(), minlength=size.size)  # disagreeing: label 0
+        np.put(agree, adopted, True)  # kept, after the votes
         share = (agreeing / np.maximum(size, 1)).astype(np.float32)
         share[0] = 0  # label 0: beside a step, on no surface
-        share[size < self.min_surface_px] = 0
+        coded = size - np.bincount(surface.ravel()[adopted], minlength=size.size)  # adopted pixels make no surface
+        share[coded < self.min_surface_px] = 0
         self.striped = 0.0
         if image is not None and np.isfinite(self.max_sideband):
             sidebands = code_sidebands(image, out) >= self.max_sideband
@@ -416,9 +425,8 @@ class CompositeDecoder:
         confidence = np.minimum(vote, np.take(share, surface))
         np.copyto(confidence, np.float32(np.nan), where=~fringes)
         ca, cb, da, db = self.terms
-        phase = np.where(adopted, local, own)
-        depth = (ca + cb * phase) / (da + db * phase)
-        np.copyto(depth, np.float32(np.nan), where=~((agree | adopted) & (confidence >= min_confidence)))
+        depth = (ca + cb * own) / (da + db * own)
+        np.copyto(depth, np.float32(np.nan), where=~(agree & (confidence >= min_confidence)))
         return depth, confidence
 
 
