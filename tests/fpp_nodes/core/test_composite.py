@@ -309,3 +309,35 @@ def test_a_wrong_order_is_half_an_orders_depth_at_the_near_end(calibration):
     one_order = abs(float(calibration.model.depth(phase + 2 * np.pi, u, v)) - near)
     assert wrong_order_mm(calibration) == pytest.approx(one_order / 2, rel=0.03)
     assert wrong_order_mm(replace(calibration, working_range_mm=None)) > wrong_order_mm(calibration)
+
+
+def test_a_pixel_whose_codes_name_no_order_takes_its_neighbourhoods_and_makes_no_surface(rig, patterns, calibration):
+    """Codes of noise on a tenth of a plane's pixels: about half of them fit no order (code_phase NaN),
+    and where three quarters of the window keeps its own order such a pixel takes the neighbourhood's,
+    the exact depth (the others name a wrong order and are outvoted); in the middle of a 30 x 30 patch
+    of noise nothing is adopted (NaN). Adopted pixels count toward no surface's size: a
+    50 x 50 patch an order off with noise codes on 15% of it (fewer than 2200 pixels inside its border
+    name an order, more with those adopted) stays NaN with min_surface_px 2200 (counting the adopted
+    toward its size gave 2080 pixels an order off), and is given, an order off, with 1500."""
+    renderer = SceneRenderer(rig, plane_scene(rig, 1150.0))
+    carrier, codes = exact_phases(renderer, patterns)
+    rng = np.random.default_rng(0)
+    unsure = rng.random(carrier.shape) < 0.1
+    patch = np.zeros(carrier.shape, bool)
+    patch[100:130, 100:130] = True
+    noise = [np.where(unsure | patch, rng.uniform(0, 2 * np.pi, carrier.shape), code) for code in codes]
+    decoder = CompositeDecoder(calibration)
+    depth, _ = decoder(as_network_output(carrier, noise), 0.5)
+    none = np.isnan(decoder.code_phase(carrier.astype(np.float32), [c.astype(np.float32) for c in noise]))
+    assert 0.3 < none[unsure].mean() < 0.7 and np.isfinite(depth[none & unsure & ~patch]).mean() > 0.9
+    assert np.nanmax(np.abs(depth - 1150.0)) < 0.05  # a pixel whose noise fits a wrong order is outvoted
+    assert np.isnan(depth[105:125, 105:125]).all()
+    wrong = np.zeros(carrier.shape, bool)
+    wrong[300:350, 300:350] = True
+    unsure = wrong & (rng.random(carrier.shape) < 0.15)
+    off = [np.where(unsure, rng.uniform(0, 2 * np.pi, carrier.shape), code) for code in orders_off(codes, wrong)]
+    out = as_network_output(carrier, off)
+    depth, _ = CompositeDecoder(calibration, min_surface_px=2200)(out, 0.5)
+    assert np.nanmax(np.abs(depth - 1150.0)) < 0.05 and np.isfinite(depth[~wrong]).mean() > 0.99
+    depth, _ = CompositeDecoder(calibration, min_surface_px=1500)(out, 0.5)
+    assert np.mean(np.abs(depth[wrong] - 1150.0) > 5) > 0.5
