@@ -255,10 +255,9 @@ class CompositeDecoder:
     A pixel whose codes name no order at all (too noisy to fit any candidate within the margin) takes
     the order nearest its neighbourhood's median phase where that lies in the working range and at
     least ADOPTION_VOTE of the VOTE_WINDOW keeps its own; it adds nothing to the votes, nor to its
-    surface's size. Depth is NaN
-    where a pixel's own codes name another order than its neighbourhood's, below min_confidence, where
-    the image shows no fringes and where the order lies outside the working range (the nearest order
-    inside would be wrong).
+    surface's size. Depth is NaN where a pixel's own codes name another order than its neighbourhood's,
+    below min_confidence, where the image shows no fringes and where the order lies outside the working
+    range (the nearest order inside would be wrong).
     An albedo striped like a code grating moves that code's phase over the whole stripes, and the
     surface's codes then agree on a wrong order. Given the image, a surface more than half of whose
     pixels show code sidebands (code_sidebands) of at least max_sideband has confidence 0.
@@ -404,8 +403,8 @@ class CompositeDecoder:
         # codes too noisy to name any order (not a contradicting one): the neighbourhood's, inside the range
         unsure = np.flatnonzero(fringes & ~ordered)  # a few: indices, not whole-image passes
         order = local.ravel()[unsure]
-        adopt = (order >= self.low.ravel()[unsure]) & (order <= self.high.ravel()[unsure])
-        adopted = unsure[adopt & (vote.ravel()[unsure] >= ADOPTION_VOTE)]
+        inside = (order >= self.low.ravel()[unsure]) & (order <= self.high.ravel()[unsure])
+        adopted = unsure[inside & (vote.ravel()[unsure] >= ADOPTION_VOTE)]
         np.put(own, adopted, local.ravel()[adopted])
         np.put(ordered, adopted, True)
         surface, size = order_surfaces(local, ordered)
