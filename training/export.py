@@ -244,7 +244,7 @@ def parallel_counts(files, model, decoder, grids: tuple) -> dict:
     return counts
 
 
-class HalfResolution(torch.nn.Module):
+class Strided(torch.nn.Module):
     """A CompositeNet without its last pixel shuffle (what its ONNX file holds)."""
 
     def __init__(self, net):
@@ -252,7 +252,7 @@ class HalfResolution(torch.nn.Module):
         self.net = net
 
     def forward(self, image):
-        return self.net.half_resolution(image)
+        return self.net.strided(image)
 
 
 def export(
@@ -268,11 +268,11 @@ def export(
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     example = torch.rand(1, 1, 480 // cfg.downsample // 32 * 32, 640 // cfg.downsample // 32 * 32)
-    shuffle = getattr(model, "PIXEL_SHUFFLE", 1)  # a composite network's last pixel shuffle runs in DepthModel
+    shuffle = getattr(model, "pixel_shuffle", 1)  # a composite network's last pixel shuffle runs in DepthModel
     warnings.filterwarnings("ignore", "You are using the legacy TorchScript-based ONNX export", DeprecationWarning)
     # dynamo=False: the TorchScript exporter gives plain dynamic height/width for this fully convolutional net
     torch.onnx.export(
-        HalfResolution(model) if shuffle > 1 else model,
+        Strided(model) if shuffle > 1 else model,
         (example,),
         str(out),
         dynamo=False,

@@ -202,27 +202,32 @@ class PhaseOrderNet(nn.Module):
 class CompositeNet(nn.Module):
     """The composite pattern's fringe analyser: from one image, the numerators and denominators of the
     carrier's and the code gratings' phases (B sin, B cos in full-scale units), each from the few
-    fringe periods around the pixel (stride-2 features, dilated convolutions for about 40 pixels,
+    fringe periods around the pixel (strided features, dilated convolutions for about 40-50 pixels,
     a pixel shuffle back to full resolution), with a context branch at 1/8 resolution that sees about
     150 pixels around (what the image's texture is, beyond one fringe period: on validation it lowered
     the loss by a tenth and raised the coverage by 0.9-1.5 points, docs/single-shot.md). It learns to read
     fringes, not scenes: the fringe order and the depth follow from physics
     (fpp_nodes.core.model.CompositeDecoder).
+    stride: the first layer's, undone at the end by a pixel shuffle (export leaves that to DepthModel):
+    2, or 4 for a quarter of the pixels to convolve (docs/single-shot.md, a network at a quarter of
+    the resolution).
     Output (B, 2 x gratings, H, W): carrier numerator, denominator, then each code's (the composite's
     gratings: its carrier and patterns.COMPOSITE_CODES; training/compare_codes.py tries others).
     """
 
-    PIXEL_SHUFFLE = 2  # the first layer's stride, undone at the end (export leaves it to DepthModel)
+    DILATIONS = {2: (1, 2, 4, 2), 4: (1, 1, 2, 1)}  # by stride: fields of 42 and 52 pixels
 
-    def __init__(self, width: int = 16, gratings: int = 1 + len(COMPOSITE_CODES)):
+    def __init__(self, width: int = 16, gratings: int = 1 + len(COMPOSITE_CODES), stride: int = 2):
         super().__init__()
-        p, r = width, self.PIXEL_SHUFFLE
-        layers = [nn.Conv2d(1, p, 6, stride=r, padding=2), nn.ReLU(inplace=True)]
-        for dilation in (1, 2, 4, 2):
+        if stride not in self.DILATIONS:
+            raise ValueError(f"stride must be one of {sorted(self.DILATIONS)}, got {stride}")
+        p, self.pixel_shuffle = width, stride
+        layers = [nn.Conv2d(1, p, 3 * stride, stride=stride, padding=stride), nn.ReLU(inplace=True)]
+        for dilation in self.DILATIONS[stride]:
             layers += [nn.Conv2d(p, p, 3, padding=dilation, dilation=dilation), nn.ReLU(inplace=True)]
-        self.net = nn.Sequential(*layers, nn.Conv2d(p, 2 * gratings * r * r, 1))
+        self.net = nn.Sequential(*layers, nn.Conv2d(p, 2 * gratings * stride * stride, 1))
         self.context = nn.Sequential(
-            nn.AvgPool2d(4),
+            nn.AvgPool2d(8 // stride),
             nn.Conv2d(p, p, 3, padding=1),
             nn.ReLU(inplace=True),
             nn.Conv2d(p, p, 3, padding=2, dilation=2),
@@ -230,28 +235,29 @@ class CompositeNet(nn.Module):
             nn.Identity(),  # the upsampling's first place: the 1x1 keeps its key (context.6) in older checkpoints
             nn.Conv2d(p, p, 1),  # zero at the start: the branch adds nothing until it has learned something
             # after the 1x1: bilinear weights sum to one, so the function is the same at 1/16 of the cost
-            nn.Upsample(scale_factor=4, mode="bilinear"),  # sizes are multiples of 32 (pad_to_stride)
+            nn.Upsample(scale_factor=8 // stride, mode="bilinear"),  # sizes are multiples of 32 (pad_to_stride)
         )
         nn.init.zeros_(self.context[6].weight)
         nn.init.zeros_(self.context[6].bias)
 
-    def half_resolution(self, image):
-        """The outputs before the pixel shuffle back to full resolution: four times the channels at half
-        the resolution. Export writes this (the card says pixel_shuffle: 2) and DepthModel shuffles in
-        numpy: onnxruntime's DepthToSpace took 6 of a 640x480 frame's 30 ms on an AVX2 core, numpy 1."""
+    def strided(self, image):
+        """The outputs before the pixel shuffle back to full resolution: stride^2 times the channels at
+        1/stride of the resolution. Export writes this (the card says pixel_shuffle) and DepthModel
+        shuffles in numpy: onnxruntime's DepthToSpace took 6 of a 640x480 frame's 30 ms on an AVX2
+        core, numpy 1."""
         first = self.net[:2](image)
         return self.net[2:](first + self.context(first))
 
     def forward(self, image):
-        return nn.functional.pixel_shuffle(self.half_resolution(image), self.PIXEL_SHUFFLE)
+        return nn.functional.pixel_shuffle(self.strided(image), self.pixel_shuffle)
 
 
 ARCHITECTURES = ("fcn", "aen", "unet", "phase", "composite")
 
 
-def build(architecture: str, width: int, dropout: float, depth_mm: tuple[float, float]) -> nn.Module:
+def build(architecture: str, width: int, dropout: float, depth_mm: tuple[float, float], stride: int = 2) -> nn.Module:
     """depth_mm: (offset, scale) of the depth-regressing networks' output in millimetres (the training
-    config holds them, so checkpoints do)."""
+    config holds them, so checkpoints do); stride: the composite network's."""
     depth_offset, depth_scale = depth_mm
     if architecture == "unet":
         return EncoderDecoder(width, True, dropout, depth_offset, depth_scale)
@@ -262,7 +268,7 @@ def build(architecture: str, width: int, dropout: float, depth_mm: tuple[float, 
     if architecture == "phase":
         return PhaseOrderNet(width)
     if architecture == "composite":
-        return CompositeNet(width)
+        return CompositeNet(width, stride=stride)
     raise ValueError(f"architecture must be one of {', '.join(ARCHITECTURES)}, got {architecture!r}")
 
 

@@ -65,6 +65,7 @@ class TrainConfig:
     augment: bool = True
     limit: int = 0  # use only the first N training samples (0: all)
     crop: int = 0  # train on random square crops of this size (0: whole images); composite only
+    stride: int = 2  # the composite network's first layer's (2, or 4: a quarter of the pixels to convolve)
     workers: int = 0  # data-loading processes (worth it beside a GPU)
     init: str = ""  # start from these weights: a checkpoint, or a model file such as the shipped one
     seed: int = 0
@@ -164,12 +165,13 @@ class FringePhaseSet(Dataset):
 
 class CompositeSet(Dataset):
     """(image [0, 1], carrier and codes' numerators/denominators (2 + 2 x codes, H, W), label mm) tensors for the
-    composite network, random crops of crop pixels (0: whole images) when training."""
+    composite network, random crops of crop pixels (0: whole images) when training, placed on the
+    network's stride grid (as a whole image is)."""
 
-    def __init__(self, files, augment: bool = False, crop: int = 0, seed: int = 0):
+    def __init__(self, files, augment: bool = False, crop: int = 0, seed: int = 0, stride: int = 2):
         with ThreadPoolExecutor(os.cpu_count()) as pool:  # unzipping runs outside the GIL
             self.items = list(pool.map(self._load, files))
-        self.augment, self.crop = augment, crop
+        self.augment, self.crop, self.stride = augment, crop, stride
         self.rng = np.random.default_rng(seed)
 
     @staticmethod
@@ -188,8 +190,7 @@ class CompositeSet(Dataset):
     def __getitem__(self, i):
         image, targets, label = self.items[i % len(self.items)]
         if self.crop:
-            y = 2 * self.rng.integers(0, (image.shape[0] - self.crop) // 2 + 1)  # even: the stride-2 grid
-            x = 2 * self.rng.integers(0, (image.shape[1] - self.crop) // 2 + 1)
+            y, x = (self.stride * self.rng.integers(0, (n - self.crop) // self.stride + 1) for n in image.shape)
             window = (slice(y, y + self.crop), slice(x, x + self.crop))
             image, targets, label = image[window], targets[(slice(None),) + window], label[window]
         image, targets = network_input(image), targets.astype(np.float32)
@@ -350,7 +351,7 @@ def load_initial_weights(model: torch.nn.Module, path, network: str) -> None:
             graph = onnx.load(str(path)).graph
         except Exception as e:
             raise ValueError(f"cannot load model {path}: {type(e).__name__}: {str(e).splitlines()[0]}") from None
-        # export writes a composite network inside HalfResolution (net.), cut before its last pixel shuffle
+        # export writes a composite network inside Strided (net.), cut before its last pixel shuffle
         weights = {
             t.name.removeprefix("net."): torch.from_numpy(numpy_helper.to_array(t).copy()) for t in graph.initializer
         }
@@ -367,7 +368,7 @@ def load_initial_weights(model: torch.nn.Module, path, network: str) -> None:
 
 def model_from_checkpoint(ckpt: dict):
     cfg = TrainConfig(**{k: v for k, v in ckpt["config"].items() if k in {f.name for f in fields(TrainConfig)}})
-    model = build(cfg.arch, cfg.width, cfg.dropout, (cfg.depth_offset_mm, cfg.depth_scale_mm))
+    model = build(cfg.arch, cfg.width, cfg.dropout, (cfg.depth_offset_mm, cfg.depth_scale_mm), cfg.stride)
     model.load_state_dict(ckpt["model"])
     return model.eval(), cfg
 
@@ -421,7 +422,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     if phase_aware:
         if config.arch == "composite":
             decoder = CompositeDecoder(calibration)
-            train_set = CompositeSet(train_files, config.augment, config.crop, config.seed + rank)
+            train_set = CompositeSet(train_files, config.augment, config.crop, config.seed + rank, config.stride)
             val_set = CompositeSet(val_files)
         else:
             decoder = PhaseOrderDecoder(calibration)
@@ -443,7 +444,8 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     val_loader = DataLoader(val_set, config.batch_size)
     showcase = val_set[0]  # one fixed validation image
 
-    model = build(config.arch, config.width, config.dropout, (config.depth_offset_mm, config.depth_scale_mm)).to(device)
+    depth_mm = (config.depth_offset_mm, config.depth_scale_mm)
+    model = build(config.arch, config.width, config.dropout, depth_mm, config.stride).to(device)
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, factor=0.5, patience=config.patience)
     history, start_epoch, seconds = [], 0, 0.0

@@ -30,7 +30,7 @@ from training.export import (
     SILENT_ERROR_LIMIT,
     SURFACE_GRID,
     WRONG_ORDER_BUDGET,
-    HalfResolution,
+    Strided,
     export,
     rule_name,
 )
@@ -167,7 +167,7 @@ def test_a_model_for_another_composite_is_refused(tmp_path):
 
     path = tmp_path / "one_code.onnx"
     torch.onnx.export(
-        HalfResolution(CompositeNet(4, gratings=2).eval()),
+        Strided(CompositeNet(4, gratings=2).eval()),
         (torch.zeros(1, 1, 64, 64),),
         str(path),
         dynamo=False,
@@ -184,7 +184,7 @@ def test_a_model_for_another_composite_is_refused(tmp_path):
         DepthModel(path)
 
 
-@pytest.mark.parametrize("r, shape", [(2, (24, 5, 7)), (3, (18, 4, 6))])
+@pytest.mark.parametrize("r, shape", [(2, (24, 5, 7)), (3, (18, 4, 6)), (4, (96, 3, 5))])
 def test_the_models_pixel_shuffle_is_torchs(r, shape):
     x = np.random.default_rng(r).random(shape, dtype=np.float32)
     expected = torch.nn.functional.pixel_shuffle(torch.from_numpy(x)[None], r)[0].numpy()
@@ -414,4 +414,5 @@ def test_the_code_comparison_measures_margins_as_the_decoder_does():
     shipped = margin(DESIGNS["two codes, rows 12/24"], rig)
     assert shipped == pytest.approx(decoder.min_separation / 2, rel=0.1)
     assert margin(DESIGNS["one code (the first)"], rig) < shipped / 5
-    assert CompositeNet(4)(torch.zeros(1, 1, 32, 32)).shape == (1, 6, 32, 32)
+    for stride in (2, 4):  # either stride's pixel shuffle gives the full resolution back
+        assert CompositeNet(4, stride=stride)(torch.zeros(1, 1, 32, 32)).shape == (1, 6, 32, 32)
