@@ -195,21 +195,17 @@ class DepthModel:
         return self.infer(image)[0]
 
     def outputs(self, image: np.ndarray) -> np.ndarray:
-        """The network's raw output for one fringe image (decode's input), as the session gives it:
-        padded to the stride, and at 1/pixel_shuffle of the resolution where the card says so."""
+        """The network's outputs for one fringe image (decode's input): its channels at the network
+        input's resolution, shuffled where the card says so (in cnn_depth's network thread: the
+        decoding thread has more to do); a phase-aware model's at the image's, where it read a
+        resampled image."""
         self.check(image)
         x = network_input(image)
         w, h = self.input_size
         if (w, h) != self.size:
             x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA if w < self.size[0] else cv2.INTER_LINEAR)
         x = cv2.copyMakeBorder(x, 0, (-h) % STRIDE, 0, (-w) % STRIDE, cv2.BORDER_REPLICATE)
-        return self.session.run([self.output], {"image": x[None, None]})[0][0]
-
-    def output_channels(self, raw: np.ndarray) -> np.ndarray:
-        """outputs' channels at the network input's resolution (shuffled here, not in the network thread
-        of cnn_depth, whose time bounds the frame rate); a phase-aware model's at the image's, where
-        it read a resampled image."""
-        w, h = self.input_size
+        raw = self.session.run([self.output], {"image": x[None, None]})[0][0]
         out = (pixel_shuffle(raw, self.shuffle) if self.shuffle > 1 else raw)[:, :h, :w]
         if self.scale != 1.0:
             out = np.stack([cv2.resize(c, self.size, interpolation=cv2.INTER_LINEAR) for c in out])
@@ -222,9 +218,8 @@ class DepthModel:
         image shows no usable fringes); a depth-regressing model has none."""
         return self.decode(image, self.outputs(image))
 
-    def decode(self, image: np.ndarray, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """infer's second half: the network's raw outputs for image -> (depth mm, confidence)."""
-        out = self.output_channels(raw)
+    def decode(self, image: np.ndarray, out: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """infer's second half: the network's outputs for image -> (depth mm, confidence)."""
         if self.decoder is not None:
             fringes = decoded_fringes(image, out, self.min_modulation, self.decoder)
             depth, confidence = self.decoder(out, 0.0, fringes, image)  # every pixel whose order its neighbours share
