@@ -42,7 +42,7 @@ from fpp_nodes.core.model import (
     trusted_single_shot,
 )
 from fpp_nodes.core.patterns import PatternSet
-from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits
+from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits, code_sidebands
 from fpp_nodes.core.workflow import wrong_order_mm
 
 from .dataset import load_sample, reference_depth, sample_family, split_files
@@ -88,16 +88,18 @@ def rule_counts(
     composite decoder's min_surface_px and max_sideband), order-confidence threshold, edge-rule step,
     roughness limit and refusal margin."""
     counts = {}
+    composite = hasattr(decoder, "min_surface_px")
     for image, truth, out, family in samples:
         exact = np.isfinite(truth)
+        ratio = code_sidebands(image, out) if composite and np.isfinite(sidebands).any() else None
         for m in floors:
             fringes = decoded_fringes(image, out, m, decoder)
             for px, t in ((px, t) for px in surfaces_px for t in sidebands):
                 decode = decoder
-                if hasattr(decoder, "min_surface_px"):
+                if composite:
                     decode = copy.copy(decoder)
                     decode.min_surface_px, decode.max_sideband = px, t
-                kept, confidence = decode(out, 0.0, fringes, image)
+                kept, confidence = decode(out, 0.0, fringes, ratio)
                 for s in steps_mm:
                     shown = trusted_single_shot(kept.copy(), image, max_depth_step_mm=s, fringes=fringes)
                     mean, roughness = local_depth(shown)

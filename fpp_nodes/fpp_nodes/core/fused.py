@@ -309,3 +309,33 @@ def demodulated_blocks(image, phasors, factor):
                         total += row[b * factor + i]
                     out[b] = total
     return sums
+
+
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+def sideband_ratio(sums, area):
+    """reconstruct.code_sidebands' ratio from demodulated_blocks' sums, windowed, as (rows, cols,
+    planes x 2): per block, the larger over the codes of (|plus - carrier u| + |minus - carrier
+    conj(u)|) / 2 / |carrier|, u the code's mean phasor (its sum / area). One pass, no complex temporaries."""
+    rows, cols, codes = sums.shape[0], sums.shape[1], (sums.shape[2] // 2 - 1) // 3
+    ratio = np.empty((rows, cols), np.float32)
+    inverse_area = np.float32(1) / np.float32(area)
+    for r in range(rows):
+        for c in range(cols):
+            s = sums[r, c]
+            cr, ci = s[0], s[1]
+            largest = np.float32(0)
+            for k in range(codes):
+                pr, pi, mr, mi = s[2 + 4 * k], s[3 + 4 * k], s[4 + 4 * k], s[5 + 4 * k]
+                ur, ui = s[2 + 4 * codes + 2 * k] * inverse_area, s[3 + 4 * codes + 2 * k] * inverse_area
+                # carrier u and carrier conj(u)
+                plus = _length(pr - (cr * ur - ci * ui), pi - (cr * ui + ci * ur))
+                minus = _length(mr - (cr * ur + ci * ui), mi - (ci * ur - cr * ui))
+                largest = max(largest, np.float32(0.5) * (plus + minus))
+            ratio[r, c] = largest / max(_length(cr, ci), np.float32(1e-6))
+    return ratio
+
+
+@numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
+def _length(x, y):
+    """|x + i y| (a square root vectorizes, libm's hypot does not)."""
+    return np.sqrt(x * x + y * y)

@@ -259,8 +259,8 @@ class CompositeDecoder:
     below min_confidence, where the image shows no fringes and where the order lies outside the working
     range (the nearest order inside would be wrong).
     An albedo striped like a code grating moves that code's phase over the whole stripes, and the
-    surface's codes then agree on a wrong order. Given the image, a surface more than half of whose
-    pixels show code sidebands (code_sidebands) of at least max_sideband has confidence 0.
+    surface's codes then agree on a wrong order. Given the image's code sidebands (code_sidebands), a
+    surface more than half of whose pixels show sidebands of at least max_sideband has confidence 0.
     After each call: outside_range, the share of the pixels with fringes whose codes named no order
     of the working range (a scene too near or too far, or codes too noisy to tell); striped, the share
     on surfaces refused for their stripes.
@@ -379,11 +379,11 @@ class CompositeDecoder:
         out: np.ndarray,
         min_confidence: float,
         fringes: np.ndarray | None = None,
-        image: np.ndarray | None = None,
+        sidebands: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """out: (2 + 2 x codes, H, W) the carrier's numerator and denominator, then each code's; fringes:
-        the pixels that show fringes (default all); image: the fringe image out was read from (without
-        it, no stripes rule). Returns (depth mm, confidence), NaN where unknown."""
+        the pixels that show fringes (default all); sidebands: code_sidebands of the fringe image out
+        was read from (without them, no stripes rule). Returns (depth mm, confidence), NaN where unknown."""
         two_pi = np.float32(2 * np.pi)
         carrier, *codes = (
             cv2.phase(np.ascontiguousarray(den, np.float32), np.ascontiguousarray(num, np.float32))
@@ -415,9 +415,8 @@ class CompositeDecoder:
         coded = size - np.bincount(surface.ravel()[adopted], minlength=size.size)  # adopted pixels make no surface
         share[coded < self.min_surface_px] = 0
         self.striped = 0.0
-        if image is not None and np.isfinite(self.max_sideband):
-            sidebands = code_sidebands(image, out) >= self.max_sideband
-            striped = np.bincount(surface[sidebands], minlength=size.size) > size / 2
+        if sidebands is not None and np.isfinite(self.max_sideband):
+            striped = np.bincount(surface[sidebands >= self.max_sideband], minlength=size.size) > size / 2
             striped &= share > 0  # on a surface (not label 0) whose vote counts
             share[striped] = 0
             self.striped = float(np.sum(size[striped])) / max(shown, 1)
@@ -471,17 +470,8 @@ def code_sidebands(image: np.ndarray, out: np.ndarray) -> np.ndarray:
     light = cv2.subtract(image, cv2.resize(mean, (width, height)), dtype=cv2.CV_32F)
     sums = fused.demodulated_blocks(light, out, SIDEBAND_BLOCK)  # (planes, 2, rows, cols)
     sums = window(np.ascontiguousarray(sums.reshape(-1, *sums.shape[2:]).transpose(1, 2, 0)))  # all at once
-    carrier, *demodulated = (sums[..., 2 * i] + 1j * sums[..., 2 * i + 1] for i in range(sums.shape[2] // 2))
-    codes = len(demodulated) // 3
-    sidebands, phasors = demodulated[: 2 * codes], demodulated[2 * codes :]
-    phasors = [p * np.float32(1 / SIDEBAND_BLOCK**2) for p in phasors]  # the window's mean u_k
-    ratio = np.maximum.reduce(
-        [
-            (np.abs(plus - carrier * u) + np.abs(minus - carrier * np.conj(u))) / 2
-            for plus, minus, u in zip(sidebands[0::2], sidebands[1::2], phasors)
-        ]
-    ) / np.maximum(np.abs(carrier), np.float32(1e-6))
-    return cv2.resize(ratio.astype(np.float32), image.shape[::-1], interpolation=cv2.INTER_LINEAR)
+    ratio = fused.sideband_ratio(sums, SIDEBAND_BLOCK**2)
+    return cv2.resize(ratio, image.shape[::-1], interpolation=cv2.INTER_LINEAR)
 
 
 FTP_MIN_CONFIDENCE = 0.5  # the composite by FTP: not tuned (a baseline), half the neighbourhood agrees

@@ -19,9 +19,10 @@ model stops the node at start. Parameters: model (path; empty = the shipped defa
 (negative: the model card's), calibration (the rig's: a composite model's phases become depth
 through it, whatever rig trained the network; intrinsics for the cloud).
 
-Two frames are in hand at once: the network runs on a frame in the subscription's callback while a
-thread of the node's own decodes the frame before and publishes it, so on 2 cores the network takes
-one (threads 1, the default) and the decoding the other (docs/single-shot.md, the node's speed).
+Two frames are in hand at once: the network runs on a frame in the subscription's callback (with
+the image's code sidebands, for balance) while a thread of the node's own decodes the frame before
+and publishes it, so on 2 cores the network takes one (threads 1, the default) and the decoding the
+other (docs/single-shot.md, the node's speed).
 """
 
 from __future__ import annotations
@@ -118,12 +119,12 @@ class CnnDepth(Node):
         start = time.perf_counter()
         try:
             image = image_to_numpy(msg)
-            out = self.model.outputs(image)
+            reading = self.model.outputs(image)
         except (ImageError, ModelError) as e:
             self.health.report("frames rejected", f"image rejected: {e}")
             return
         self.decoding.join()  # the frame before is published
-        self.decoding.put((msg.header, image, out, want, start))
+        self.decoding.put((msg.header, image, reading, want, start))
 
     def _decode_frames(self):
         while (frame := self.decoding.get()) is not None:
@@ -135,8 +136,8 @@ class CnnDepth(Node):
             finally:
                 self.decoding.task_done()
 
-    def _publish(self, header, image, out, want, start):
-        depth_mm, confidence = self.model.decode(image, out)
+    def _publish(self, header, image, reading, want, start):
+        depth_mm, confidence = self.model.decode(image, reading)
         if want["depth"]:
             self.depth_pub.publish(numpy_to_image(depth_mm * np.float32(0.001), header))
         if want["confidence"] and confidence is not None:

@@ -193,15 +193,17 @@ def test_the_carriers_sidebands_measure_stripes_laid_like_a_code(rig, patterns, 
 
 
 def test_a_surface_striped_like_a_code_is_refused_and_a_plain_one_kept(rig, patterns, calibration):
-    """Stripes of contrast 0.3 over the whole plane: with the image, the decoder gives it confidence 0
-    (max_sideband 0.08; the stripes make 0.088), without it, its depth; a plain plane keeps its depth."""
+    """Stripes of contrast 0.3 over the whole plane: with the image's sidebands, the decoder gives it
+    confidence 0 (max_sideband 0.08; the stripes make 0.088), without them, its depth; a plain plane
+    keeps its depth."""
     decoder = CompositeDecoder(calibration, max_sideband=0.08)
     image, out = striped_plane(rig, patterns, 1, 0.3)
-    depth, confidence = decoder(out, 0.5, image=image)
+    depth, confidence = decoder(out, 0.5, sidebands=code_sidebands(image, out))
     assert np.isnan(depth).all() and np.nanmax(confidence) == 0 and decoder.striped > 0.99
-    assert np.isfinite(decoder(out, 0.5)[0]).mean() > 0.99  # no image, no rule
+    assert np.isfinite(decoder(out, 0.5)[0]).mean() > 0.99  # no sidebands, no rule
     image, out = striped_plane(rig, patterns, 1, 0.0)
-    assert np.isfinite(decoder(out, 0.5, image=image)[0]).mean() > 0.99 and decoder.striped == 0
+    assert np.isfinite(decoder(out, 0.5, sidebands=code_sidebands(image, out))[0]).mean() > 0.99
+    assert decoder.striped == 0
 
 
 def test_order_surfaces_join_neighbours_whose_absolute_phases_differ_by_less_than_pi():
