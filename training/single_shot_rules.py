@@ -44,7 +44,7 @@ def main():
     outputs = []  # (image, exact depth, network outputs, family), run once
     for f in files:
         image, _, truth = load_sample(f)
-        outputs.append((image, truth, model.outputs(image).channels, sample_family(f)))
+        outputs.append((image, truth, model.outputs(image), sample_family(f)))
     floor, surface, rough, margin = (
         model.min_modulation,
         model.decoder.min_surface_px,

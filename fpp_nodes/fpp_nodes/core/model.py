@@ -9,7 +9,6 @@ from __future__ import annotations
 import hashlib
 from importlib import resources
 from pathlib import Path
-from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -54,13 +53,6 @@ def paper_model_path() -> str:
     knows only its training family, a bust on a plane at the reference depth tilted at most 3 degrees,
     and is silently wrong elsewhere."""
     return str(resources.files("fpp_nodes") / "data" / "models" / "unet.onnx")
-
-
-class Reading(NamedTuple):
-    """What one fringe image gives before decoding (DepthModel.outputs)."""
-
-    channels: np.ndarray  # the network's outputs
-    sidebands: np.ndarray | None  # the image's code sidebands (reconstruct.code_sidebands) for a stripes rule
 
 
 class DepthModel:
@@ -209,11 +201,11 @@ class DepthModel:
         (see trusted_single_shot)."""
         return self.infer(image)[0]
 
-    def outputs(self, image: np.ndarray) -> Reading:
-        """What one fringe image gives before decoding (decode's input): the network's channels at the
-        network input's resolution, shuffled where the card says so, a phase-aware model's at the
-        image's, where it read a resampled image; with a stripes rule, the image's code sidebands. (In
-        cnn_depth's network thread: the decoding thread has more to do.)"""
+    def outputs(self, image: np.ndarray) -> np.ndarray:
+        """The network's outputs for one fringe image (decode's input): its channels at the network
+        input's resolution, shuffled where the card says so (in cnn_depth's network thread: the
+        decoding thread has more to do); a phase-aware model's at the image's, where it read a
+        resampled image."""
         self.check(image)
         x = network_input(image)
         w, h = self.input_size
@@ -224,8 +216,13 @@ class DepthModel:
         out = (pixel_shuffle(raw, self.shuffle) if self.shuffle > 1 else raw)[:, :h, :w]
         if self.scale != 1.0:
             out = np.stack([cv2.resize(c, self.size, interpolation=cv2.INTER_LINEAR) for c in out])
-        striped_rule = np.isfinite(getattr(self.decoder, "max_sideband", np.inf))  # a composite decoder's
-        return Reading(out, code_sidebands(image, out) if striped_rule else None)
+        return out
+
+    def sidebands(self, image: np.ndarray, out: np.ndarray) -> np.ndarray | None:
+        """The stripes rule's evidence, the image's code sidebands (code_sidebands), for a composite
+        decoder with the rule; None otherwise."""
+        striped_rule = np.isfinite(getattr(self.decoder, "max_sideband", np.inf))
+        return code_sidebands(image, out) if striped_rule else None
 
     def infer(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(depth mm, confidence) of one fringe image. A phase-aware model's confidence is the
@@ -234,13 +231,17 @@ class DepthModel:
         image shows no usable fringes); a depth-regressing model has none."""
         return self.decode(image, self.outputs(image))
 
-    def decode(self, image: np.ndarray, reading: Reading) -> tuple[np.ndarray, np.ndarray | None]:
-        """infer's second half: what image gave (outputs) -> (depth mm, confidence)."""
-        out = reading.channels
+    def decode(
+        self, image: np.ndarray, out: np.ndarray, sidebands: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """infer's second half: the network's outputs for image -> (depth mm, confidence); sidebands:
+        self.sidebands(image, out) where already taken (else taken here)."""
         if self.decoder is not None:
             fringes = decoded_fringes(image, out, self.min_modulation, self.decoder)
+            if sidebands is None:
+                sidebands = self.sidebands(image, out)
             # every pixel whose order its neighbours share
-            depth, confidence = self.decoder(out, 0.0, fringes, reading.sidebands)
+            depth, confidence = self.decoder(out, 0.0, fringes, sidebands)
             depth = trusted_single_shot(depth, image, fringes=fringes, max_roughness_mm=self.max_roughness_mm)
             depth[~(confidence >= self.min_confidence)] = np.nan
             refusal_margin(depth, fringes, self.margin_px)

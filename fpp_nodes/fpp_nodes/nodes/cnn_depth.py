@@ -19,10 +19,10 @@ model stops the node at start. Parameters: model (path; empty = the shipped defa
 (negative: the model card's), calibration (the rig's: a composite model's phases become depth
 through it, whatever rig trained the network; intrinsics for the cloud).
 
-Two frames are in hand at once: the network runs on a frame in the subscription's callback (with
-the image's code sidebands, for balance) while a thread of the node's own decodes the frame before
-and publishes it, so on 2 cores the network takes one (threads 1, the default) and the decoding the
-other (docs/single-shot.md, the node's speed).
+Two frames are in hand at once: the network runs on a frame in the subscription's callback while a
+thread of the node's own decodes the frame before and publishes it, so on 2 cores the network takes
+one (threads 1, the default) and the decoding the other (docs/single-shot.md, the node's speed); the
+first of the two to be done takes the image's code sidebands.
 """
 
 from __future__ import annotations
@@ -119,12 +119,15 @@ class CnnDepth(Node):
         start = time.perf_counter()
         try:
             image = image_to_numpy(msg)
-            reading = self.model.outputs(image)
+            out = self.model.outputs(image)
         except (ImageError, ModelError) as e:
             self.health.report("frames rejected", f"image rejected: {e}")
             return
+        # while the decoding thread is still busy with the frame before, this one would only wait: it
+        # takes the image's code sidebands meanwhile
+        sidebands = self.model.sidebands(image, out) if self.decoding.unfinished_tasks else None
         self.decoding.join()  # the frame before is published
-        self.decoding.put((msg.header, image, reading, want, start))
+        self.decoding.put((msg.header, image, out, sidebands, want, start))
 
     def _decode_frames(self):
         while (frame := self.decoding.get()) is not None:
@@ -136,8 +139,8 @@ class CnnDepth(Node):
             finally:
                 self.decoding.task_done()
 
-    def _publish(self, header, image, reading, want, start):
-        depth_mm, confidence = self.model.decode(image, reading)
+    def _publish(self, header, image, out, sidebands, want, start):
+        depth_mm, confidence = self.model.decode(image, out, sidebands)
         if want["depth"]:
             self.depth_pub.publish(numpy_to_image(depth_mm * np.float32(0.001), header))
         if want["confidence"] and confidence is not None:
