@@ -5,6 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from fpp_nodes.core import fused
 from fpp_nodes.core.calibration import Calibration, CalibrationError
 from fpp_nodes.core.model import local_depth, refusal_margin
 from fpp_nodes.core.patterns import COMPOSITE_CODES, composite_pattern, composite_phases
@@ -190,6 +191,22 @@ def test_the_carriers_sidebands_measure_stripes_laid_like_a_code(rig, patterns, 
     # moves the carrier into the demodulation at carrier +- code, and it is taken out again
     out[2:4] = np.array([np.sin(1.0), np.cos(1.0)], np.float32)[:, None, None]
     assert np.quantile(code_sidebands(image, out)[inside], 0.99) < 0.01
+
+
+def test_the_sideband_ratio_pass_is_the_complex_formula():
+    """fused.sideband_ratio against code_sidebands' formula in complex numbers, on random windowed sums
+    (carrier, then plus and minus for each code, then each code's phasor sum over the block's area)."""
+    codes, area = len(COMPOSITE_CODES), 16
+    sums = np.random.default_rng(0).normal(size=(6, 7, 2 * (3 * codes + 1))).astype(np.float32)
+    carrier, *rest = (sums[..., 2 * i] + 1j * sums[..., 2 * i + 1] for i in range(3 * codes + 1))
+    sidebands, phasors = rest[: 2 * codes], [p / area for p in rest[2 * codes :]]
+    expected = np.maximum.reduce(
+        [
+            (np.abs(plus - carrier * u) + np.abs(minus - carrier * np.conj(u))) / 2
+            for plus, minus, u in zip(sidebands[0::2], sidebands[1::2], phasors)
+        ]
+    ) / np.abs(carrier)
+    assert fused.sideband_ratio(sums, area) == pytest.approx(expected, rel=1e-5)
 
 
 def test_a_surface_striped_like_a_code_is_refused_and_a_plain_one_kept(rig, patterns, calibration):
