@@ -292,9 +292,9 @@ class PhaseOrderDecoder:
         self.terms = depth_terms(calibration)
 
     def __call__(
-        self, out: np.ndarray, min_confidence: float, fringes: np.ndarray | None = None, image=None
+        self, out: np.ndarray, min_confidence: float, fringes: np.ndarray | None = None, sidebands=None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """As CompositeDecoder's (the paper's pattern has no code gratings, so the image tells nothing more)."""
+        """As CompositeDecoder's (the paper's pattern has no code gratings: sidebands are ignored)."""
         num, den, orders, log_sigma = (np.ascontiguousarray(c, np.float32) for c in out)
         wrapped = cv2.phase(den, num)  # atan2(num, den) in [0, 2 pi)
         coarse = self.reference + np.float32(2 * np.pi) * orders
