@@ -48,9 +48,12 @@ SETS = {
     "surface": ("families", (600, 48, 96), 400_000, "paper"),
     "composite": ("families", (360, 40, 120), 500_000, "composite"),
     "composite_paper": ("families", (360, 40, 120), 500_000, "paper"),
+    "composite_retest": ("families", (0, 0, 120), 600_000, "composite"),
 }
 # composite_paper: the composite set's scenes (the same seeds), the paper's single-shot frame: the two
 # patterns compared on the same scenes with the same training budget (README, Table 1).
+# composite_retest: a second draw of the composite set's test scenes (new seeds, every family): a candidate
+# network is judged there once the composite test split has been read for design choices.
 # The families set spans the working volume: backgrounds anywhere in 1100-1300 mm. The surface set puts
 # the background (the work surface) at the calibration's reference depth at the image centre, any tilt:
 # one 100-fringe image cannot tell the fringe order of a surface at an unknown depth (a phase-aware

@@ -17,7 +17,7 @@ from fpp_nodes.core.model import DepthModel, ModelError, default_model_path, pix
 from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.core.simulation import Rig
 from training.compare_codes import DESIGNS, margin
-from training.dataset import load_phase_targets, load_sample, split_files, write_set
+from training.dataset import SETS, SPLITS, load_phase_targets, load_sample, seed_of, split_files, write_set
 from training.evaluate import family_table
 from training.export import (
     CONFIDENCE_GRID,
@@ -67,6 +67,19 @@ def test_samples_pair_one_fringe_image_with_its_multi_shot_label(tiny_set):
     ok = np.isfinite(label) & np.isfinite(truth)
     assert ok.mean() > 0.9 and np.sqrt(np.mean((label - truth)[ok] ** 2)) < 0.06  # the multi-shot label is good
     assert yaml.safe_load((tiny_set / "dataset.yaml").read_text())["counts"] == {"train": 3, "val": 1, "test": 1}
+
+
+def test_no_two_sets_share_a_scene_but_the_pattern_comparisons():
+    """Held out means held out: each set's scenes (seeds) are its own, a retest draws new ones; only
+    composite_paper renders composite's scenes, to compare the patterns on them."""
+    seeds = {
+        name: {seed_of(name, split, i) for split, n in zip(SPLITS, SETS[name][1]) for i in range(n)} for name in SETS
+    }
+    for a in SETS:
+        for b in SETS:
+            if a < b and {a, b} != {"composite", "composite_paper"}:
+                assert not seeds[a] & seeds[b], (a, b)
+    assert seeds["composite"] == seeds["composite_paper"]
 
 
 @pytest.mark.parametrize("arch, convs, pools, transposes", [("aen", 23, 5, 5), ("unet", 23, 5, 5), ("fcn", 16, 5, 3)])
