@@ -6,6 +6,7 @@ be measured. Shadowed and untrusted pixels are invalid in the label and are left
 
     python -m training.dataset --out data/fpp --set single [--counts 540,60,72] [--workers 2]
     python -m training.dataset --out data/fpp --set composite   # scene families, the composite (see SETS)
+    python -m training.dataset --out data/fpp --set composite_retest   # 120 fresh test scenes of the same families
     python -m training.dataset --out data/my_rig --from-bag bags/run1 [--split train]
 
 On disk (a folder per set and split, one file per sample):
