@@ -24,7 +24,7 @@ import yaml
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import network_input, trusted_single_shot
-from fpp_nodes.core.reconstruct import CompositeDecoder, reconstruct_ftp
+from fpp_nodes.core.reconstruct import CompositeDecoder, drop_flying_pixels, reconstruct_ftp
 from fpp_nodes.core.workflow import fringe_depth_mm, wrong_order_mm
 
 from .dataset import load_sample, reference_depth, sample_family, split_files
@@ -49,14 +49,28 @@ def predict_full(model, image: np.ndarray, downsample: int) -> np.ndarray:
 SILENT_ERROR_MM = 1.0
 
 
+def largest_surface(depth: np.ndarray, max_step_mm: float) -> np.ndarray:
+    """The pixels of the largest surface in a depth map (NaN: none): 4-neighbours joined where their
+    depths differ by at most max_step_mm, a pixel beside a larger step on none. With half a fringe
+    order for the step (Itoh's condition, which CompositeDecoder's surfaces use too), the background of
+    a scene with one: what the single-shot issue calls the surfaces continuous with the background."""
+    inside = drop_flying_pixels(depth, max_step_mm)
+    _, labels = cv2.connectedComponents(inside.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0  # off every surface
+    return (labels == sizes.argmax()) & inside
+
+
 def family_table(data: str, model_paths, split: str = "test", limit: int = 0) -> None:
     """Generalisation by scene family, on the split's samples (the families set's test split holds the
     held-out families too): RMSE against the exact depth (a recorded set has none: against its
     multi-shot label), silent errors (the share of output pixels off
-    it by more than SILENT_ERROR_MM), coverage (the share of lit pixels given a depth) and, for a
-    phase-aware model, the mean confidence in the fringe order over the lit pixels that show fringes;
-    beside them FTP on the same images where the set is the composite's, and the multi-shot label.
-    Wrong orders: the share of output pixels off by more than half a fringe order (wrong_order_mm)."""
+    it by more than SILENT_ERROR_MM), coverage (the share of lit pixels given a depth), the coverage of
+    the largest surface continuous in the exact depth (largest_surface: the background, where the scene
+    has one) and, for a phase-aware model, the mean confidence in the fringe order over the lit pixels
+    that show fringes; beside them FTP on the same images where the set is the composite's, and the
+    multi-shot label. Wrong orders: the share of output pixels off by more than half a fringe order
+    (wrong_order_mm)."""
     from .figures import load_models
 
     info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
@@ -68,12 +82,14 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     models.append(("multi-shot (the label)", None))  # what all the sequence's images measure: the reference
     held_out = set(info.get("held_out_families", []))
     wrong_order = wrong_order_mm(calibration)
-    # (family, model) -> ErrorTotals against the exact depth (over 1 mm; over wrong_order); [confidence sum, pixels]
-    errors, orders, sure = {}, {}, {}
+    # (family, model) -> ErrorTotals against the exact depth (over 1 mm; over wrong_order; on the largest
+    # surface); [confidence sum, pixels]
+    errors, orders, main_surface, sure = {}, {}, {}, {}
     for f in split_files(data, split)[: limit or None]:
         family = sample_family(f, info.get("scene", "?"))
         image, label, truth = load_sample(f)
         reference = reference_depth(label, truth)
+        on_main = np.where(largest_surface(reference, wrong_order), reference, np.nan)
         for name, predict in models:
             depth, confidence = (
                 (label, None)
@@ -84,6 +100,7 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
             )
             errors.setdefault((family, name), ErrorTotals()).add(depth, reference, SILENT_ERROR_MM)
             orders.setdefault((family, name), ErrorTotals()).add(depth, reference, wrong_order)
+            main_surface.setdefault((family, name), ErrorTotals()).add(depth, on_main)
             if confidence is not None:
                 known = confidence[np.isfinite(confidence) & np.isfinite(reference)]
                 totals = sure.setdefault((family, name), [0.0, 0])
@@ -92,8 +109,8 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     families = sorted({f for f, _ in errors}, key=lambda f: (f in held_out, f))
     first = max([14, *(len(f) + 3 for f in families)])  # a recorded set's families are its bags' names
     print(f"{split} split of {data}, by scene family (* held out of training and validation)")
-    print(f"{'family':{first}}" + "".join(f"{n[:36]:>38}" for n in names))
-    print(f"{'':{first}}" + "".join(f"{'RMSE mm  >1mm  orders   cover  conf':>38}" for _ in names))
+    print(f"{'family':{first}}" + "".join(f"{n[:42]:>44}" for n in names))
+    print(f"{'':{first}}" + "".join(f"{'RMSE mm  >1mm  orders   cover   main  conf':>44}" for _ in names))
     for family in families:
         cells = []
         for n in names:
@@ -101,16 +118,17 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
             rmse = f"{e.rmse:8.3f}" if e.compared else f"{'-':>8}"
             wrong = orders[(family, n)].share_over
             cells.append(
-                f"{rmse} {e.share_over:6.2%} {wrong:6.3%} {e.coverage:7.1%} "
+                f"{rmse} {e.share_over:6.2%} {wrong:6.3%} {e.coverage:7.1%} {main_surface[family, n].coverage:6.1%} "
                 + (f"{conf / known:5.2f}" if known else f"{'-':>5}")
             )
-        print(f"{family + (' *' if family in held_out else ''):{first}}" + "".join(f"{c:>38}" for c in cells))
+        print(f"{family + (' *' if family in held_out else ''):{first}}" + "".join(f"{c:>44}" for c in cells))
     print(
         "RMSE against the exact depth (a recorded set's: the multi-shot label) over the pixels given a depth; "
         f">1mm: share of those off by more than {SILENT_ERROR_MM:g} mm (silent errors); orders: off by more than "
-        f"half a fringe order ({wrong_order:.1f} mm, wrong orders); cover: share of lit "
-        "pixels given a depth; conf: a phase-aware model's mean confidence in the fringe order over the lit "
-        "pixels that show fringes"
+        f"half a fringe order ({wrong_order:.1f} mm, wrong orders); cover: share of lit pixels given a depth; "
+        "main: the same of the largest surface's (the background's where there is one; 4-neighbours within "
+        f"{wrong_order:.1f} mm of each other in the exact depth); conf: a phase-aware model's mean confidence in "
+        "the fringe order over the lit pixels that show fringes"
     )
 
 

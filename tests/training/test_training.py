@@ -19,7 +19,7 @@ from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.core.simulation import Rig
 from training.compare_codes import DESIGNS, margin
 from training.dataset import SETS, SPLITS, load_phase_targets, load_sample, seed_of, split_files, write_set
-from training.evaluate import family_table
+from training.evaluate import family_table, largest_surface
 from training.export import (
     CONFIDENCE_GRID,
     FLOOR_GRID,
@@ -80,6 +80,23 @@ def test_no_two_sets_share_a_scene_but_the_pattern_comparison():
         if {a, b} != {"composite", "composite_paper"}:
             assert not seeds[a] & seeds[b], (a, b)
     assert seeds["composite"] == seeds["composite_paper"]
+
+
+def test_the_largest_surface_is_the_background_less_what_steps_cut_off():
+    """A plane tilted 30 degrees (0.14 mm a pixel), a block 30 mm tall and a plate 3 mm tall on it, and a
+    shadow: the largest surface is the plane with the plate (a step under the limit) but without the
+    block and the pixels beside its edges; the shadow is on no surface."""
+    depth = 1200.0 + 0.14 * np.arange(100, dtype=np.float32)[None, :].repeat(80, axis=0)
+    depth[20:40, 20:40] -= 30.0  # the block
+    depth[50:60, 60:90] -= 3.0  # the plate
+    depth[65:75, 5:15] = np.nan  # a shadow
+    main = largest_surface(depth, 4.7)
+    assert main[50:60, 60:90].all() and main[0, 0] and main[79, 99]
+    assert not main[20:40, 19:41].any() and not main[19:41, 20:40].any() and not main[65:75, 5:15].any()
+    assert main.sum() == 80 * 100 - (22 * 22 - 4) - 100  # the block and the ring around it but its corners
+    depth[:, 70] = np.nan  # a column of shadow: two surfaces, the larger kept
+    main = largest_surface(depth, 4.7)
+    assert main[0, 0] and not main[:, 70:].any()
 
 
 @pytest.mark.parametrize("arch, convs, pools, transposes", [("aen", 23, 5, 5), ("unet", 23, 5, 5), ("fcn", 16, 5, 3)])
