@@ -24,7 +24,7 @@ import yaml
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import network_input, trusted_single_shot
-from fpp_nodes.core.reconstruct import CompositeDecoder, drop_flying_pixels, reconstruct_ftp
+from fpp_nodes.core.reconstruct import CompositeDecoder, order_surfaces, reconstruct_ftp
 from fpp_nodes.core.workflow import fringe_depth_mm, wrong_order_mm
 
 from .dataset import load_sample, reference_depth, sample_family, split_files
@@ -50,15 +50,13 @@ SILENT_ERROR_MM = 1.0
 
 
 def largest_surface(depth: np.ndarray, max_step_mm: float) -> np.ndarray:
-    """The pixels of the largest surface in a depth map (NaN: none): 4-neighbours joined where their
-    depths differ by at most max_step_mm, a pixel beside a larger step on none. With half a fringe
+    """The pixels of the largest surface in a depth map (NaN: none; order_surfaces): 4-neighbours
+    joined where their depths differ by at most max_step_mm, a pixel beside a larger step on none. With half a fringe
     order for the step (Itoh's condition, which CompositeDecoder's surfaces use too), the background of
     a scene with one: what the single-shot issue calls the surfaces continuous with the background."""
-    inside = drop_flying_pixels(depth, max_step_mm)
-    _, labels = cv2.connectedComponents(inside.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
-    sizes = np.bincount(labels.ravel())
+    labels, sizes = order_surfaces(depth, np.isfinite(depth), max_step_mm)
     sizes[0] = 0  # off every surface
-    return (labels == sizes.argmax()) & inside
+    return (labels == sizes.argmax()) & (labels > 0)
 
 
 def family_table(data: str, model_paths, split: str = "test", limit: int = 0) -> None:

@@ -428,13 +428,13 @@ class CompositeDecoder:
         return depth, confidence
 
 
-def order_surfaces(absolute: np.ndarray, fringes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def order_surfaces(absolute: np.ndarray, fringes: np.ndarray, max_step: float = np.pi) -> tuple[np.ndarray, np.ndarray]:
     """(label per pixel, pixels per label) of the surfaces an absolute phase map holds: pixels with
     fringes joined through their 4 neighbours where the absolute phase changes by less than pi (Itoh's
     condition, which a continuous surface meets: the orders step as the wrapped phase does). A pixel
     beside a change of more (a depth step, or an order that disagrees with its neighbour's) is on
-    none: label 0."""
-    inside = fringes & drop_flying_pixels(absolute, np.pi)
+    none: label 0. max_step: the same for another map (a depth map: half an order's depth)."""
+    inside = fringes & drop_flying_pixels(absolute, max_step)
     count, labels = cv2.connectedComponents(inside.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
     return labels, np.bincount(labels.ravel(), minlength=count)
 
