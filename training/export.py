@@ -2,6 +2,7 @@
 
     python -m training.export runs/unet/best.pt --out fpp_nodes/fpp_nodes/data/models/unet.onnx
     python -m training.export runs/gpu/best.pt --out model.onnx --data data/fpp/composite
+    python -m training.export model.onnx --data data/fpp/composite   # its rules chosen again, card rewritten
 
 The ONNX model has one input, `image` (float32, N x 1 x H x W, the camera image / full scale, at 1/
 downsample of the camera's resolution, H and W multiples of 32) and one output, `depth_mm`
@@ -46,7 +47,7 @@ from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits, code_sid
 from fpp_nodes.core.workflow import wrong_order_mm
 
 from .dataset import load_sample, reference_depth, sample_family, split_files
-from .train import load_checkpoint, model_from_checkpoint, predict
+from .train import load_checkpoint, load_initial_weights, model_from_checkpoint, model_from_config, predict
 
 PARITY_TOLERANCE_MM = 1e-3
 CARD_FORMAT = "fpp_model_card"
@@ -355,14 +356,44 @@ def export(
     return card
 
 
+def choose_again(model_path: str, data: str) -> dict:
+    """An exported phase-aware model's rules chosen again (choose_decoding) on data's validation split,
+    decoded with data's calibration (a set recorded with the rig it is to run on, or a decoder changed
+    since its export), into its card; the network and its sha256 stay as they are."""
+    path = Path(model_path)
+    card_path = path.with_suffix(".yaml")
+    card = yaml.safe_load(card_path.read_text())
+    if card.get("architecture") not in OUTPUTS:
+        raise ValueError(f"{path} is no phase-aware model: it has no rules to choose")
+    if sha256(path) != card["sha256"]:
+        raise ValueError(f"{path} does not match its card's sha256")
+    model, cfg = model_from_config(card["training"]["config"])
+    load_initial_weights(model, path, f"{cfg.arch}, width {cfg.width}")
+    calibration = Calibration.from_dict(yaml.safe_load((Path(data) / "dataset.yaml").read_text())["calibration"])
+    decoder = (CompositeDecoder if cfg.arch == "composite" else PhaseOrderDecoder)(calibration)
+    card["decoding"] = choose_decoding(model.eval(), data, decoder, calibration)
+    card_path.write_text(yaml.safe_dump(card, sort_keys=False))
+    return card
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(
         prog="python -m training.export", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("checkpoint")
-    parser.add_argument("--out", required=True)
+    parser.add_argument(
+        "checkpoint", help="a checkpoint to export, or an exported model (.onnx) whose rules to choose again"
+    )
+    parser.add_argument("--out", help="the model file to write (a checkpoint's export)")
     parser.add_argument("--data", help="the set whose validation split chooses the rules (default: the training set)")
     args = parser.parse_args(argv)
+    if Path(args.checkpoint).suffix == ".onnx":
+        if not args.data:
+            parser.error("choosing an exported model's rules again needs --data")
+        decoding = choose_again(args.checkpoint, args.data)["decoding"]
+        print(f"rewrote the card of {args.checkpoint}: rules chosen on {decoding['chosen_on']}")
+        return
+    if not args.out:
+        parser.error("exporting a checkpoint needs --out")
     card = export(args.checkpoint, args.out, data=args.data)
     print(
         f"wrote {args.out} ({card['parameters']} parameters, sha256 {card['sha256'][:12]}...) and its card; "

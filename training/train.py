@@ -366,9 +366,14 @@ def load_initial_weights(model: torch.nn.Module, path, network: str) -> None:
     model.load_state_dict({k: weights[k] for k in expected})
 
 
+def model_from_config(config: dict):
+    """(an untrained network, its TrainConfig) of a run's config: a checkpoint's, or a model card's training.config."""
+    cfg = TrainConfig(**{k: v for k, v in config.items() if k in {f.name for f in fields(TrainConfig)}})
+    return build(cfg.arch, cfg.width, cfg.dropout, (cfg.depth_offset_mm, cfg.depth_scale_mm), cfg.stride), cfg
+
+
 def model_from_checkpoint(ckpt: dict):
-    cfg = TrainConfig(**{k: v for k, v in ckpt["config"].items() if k in {f.name for f in fields(TrainConfig)}})
-    model = build(cfg.arch, cfg.width, cfg.dropout, (cfg.depth_offset_mm, cfg.depth_scale_mm), cfg.stride)
+    model, cfg = model_from_config(ckpt["config"])
     model.load_state_dict(ckpt["model"])
     return model.eval(), cfg
 

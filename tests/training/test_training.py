@@ -32,8 +32,10 @@ from training.export import (
     SURFACE_GRID,
     WRONG_ORDER_BUDGET,
     Strided,
+    choose_again,
     export,
     rule_name,
+    sha256,
 )
 from training.models import CompositeNet, build, layer_counts, pad_to_stride
 from training.train import TrainConfig, load_checkpoint, model_from_checkpoint, train
@@ -433,6 +435,12 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m2.onnx"), data=str(moved))
     assert card["decoding"]["chosen_on"].startswith(str(moved)) and card["training"]["data"] == str(data)
     assert card["calibration"]["camera"]["width"] == 640
+    # the exported model's rules chosen again from its ONNX file (a card without them): the same rules and file
+    stale = yaml.safe_load((tmp_path / "m2.yaml").read_text()) | {"decoding": {}}
+    (tmp_path / "m2.yaml").write_text(yaml.safe_dump(stale, sort_keys=False))
+    again = choose_again(str(tmp_path / "m2.onnx"), str(moved))
+    assert again["decoding"] == card["decoding"] and again["sha256"] == card["sha256"] == sha256(tmp_path / "m2.onnx")
+    assert DepthModel(tmp_path / "m2.onnx").min_confidence == card["decoding"]["min_confidence"]
 
 
 def test_the_code_comparison_measures_margins_as_the_decoder_does():
