@@ -34,8 +34,10 @@ MIN_MODULATION = 0.05  # as the multi-shot path's QualityLimits: a fraction of f
 # A composite network sees a rig's fringes at the period it was trained on: the image is resampled where
 # the periods differ by more than this (surfaces tilted by 20 degrees in training already change it by 6%)
 PERIOD_TOLERANCE = 0.05
-# more than this share of the pixels with fringes naming no order of the working range: the scene is outside it
-MOSTLY_OUTSIDE = 0.5
+# more than this share of the pixels with fringes naming no order of the working range: the scene, or part of
+# it, is outside it (chosen on validation, every surface in the range: 1 frame in 200 passes it; beyond the
+# range the codes repeat and name wrong orders inside it on much of a surface, docs/single-shot.md)
+OUTSIDE_WARNING = 0.3
 
 
 class ModelError(ValueError):
@@ -170,15 +172,17 @@ class DepthModel:
         self.input_size = tuple(round(n * scale) // self.downsample for n in size)
 
     def warnings(self) -> dict[str, str]:
-        """After a frame of a composite model: {what the frame was: what to say} where most of its pixels
-        with fringes named no order of the working range (CompositeDecoder.outside_range), and where it
-        refused surfaces for an albedo striped like the pattern's code gratings (CompositeDecoder.striped)."""
+        """After a frame of a composite model: {what the frame was: what to say} where more than
+        OUTSIDE_WARNING of its pixels with fringes named no order of the working range
+        (CompositeDecoder.outside_range), and where it refused surfaces for an albedo striped like the
+        pattern's code gratings (CompositeDecoder.striped)."""
         said = {}
-        if (outside := getattr(self.decoder, "outside_range", 0.0)) > MOSTLY_OUTSIDE:
+        if (outside := getattr(self.decoder, "outside_range", 0.0)) > OUTSIDE_WARNING:
             near, far = (self.calibration or self.card_calibration).working_range_mm
             said["frames outside the working range"] = (
                 f"the codes of {outside:.0%} of the pixels with fringes name no order of the working range "
-                f"{near:g}-{far:g} mm: is the scene nearer or farther?"
+                f"{near:g}-{far:g} mm: is the scene, or part of it, nearer or farther (beyond the range the "
+                "codes repeat, and one image gives wrong depths there too), or are its codes unreadable?"
             )
         if striped := getattr(self.decoder, "striped", 0.0):
             said["frames with surfaces striped like the pattern"] = (
