@@ -12,7 +12,9 @@ from the grating except through what the albedo does to the other gratings). Geo
 calibrated from simulated noisy planes 60 mm either side of its stand-off (its working range) and
 measures the sculpture and separated objects (fresh seeds) through that calibration, as cnn_depth does
 with the rig's calibration; beside it, the same decoded with the model card's calibration (the training
-rig's, what cnn_depth used before). Prints the coverage of the lit pixels and the share of the output
+rig's, what cnn_depth used before). Outside the working range: surfaces nearer or farther than the
+calibration's working range (1000-1350 mm in the default rig), where the composite's codes begin to
+repeat. Prints the coverage of the lit pixels and the share of the output
 off the exact depth by more than 1 and 4 mm.
 
     python scripts/single_shot_conditions.py
@@ -29,7 +31,7 @@ import numpy as np
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import DepthModel, default_model_path
 from fpp_nodes.core.patterns import composite_phases
-from fpp_nodes.core.scenes import make_scene
+from fpp_nodes.core.scenes import make_scene, plane_scene
 from fpp_nodes.core.simulation import Rig, Scene, SceneRenderer, render
 from fpp_nodes.core.workflow import simulated_calibration
 
@@ -101,6 +103,32 @@ GEOMETRIES = {
 GEOMETRY_SCENES = [(kind, seed) for kind in ("sculpture", "objects") for seed in (7001, 7002)]
 
 
+def outside_scenes(rig, kind: str, seed: int) -> Scene:
+    """A scene with surfaces outside the default rig's working range (1000-1350 mm), by kind: a plane
+    650-950 mm away, or 1420-3000 mm, tilted by up to 25 degrees; the demo's sculpture or separated
+    objects (their parts that stand off their background, in the range) before a wall at 1500-2500
+    mm; a box whose top reaches 880-950 mm from a background in the range."""
+    rng = np.random.default_rng([seed, 3])
+    tilts = rng.uniform(-25, 25, 2)
+    if kind == "near planes":
+        return plane_scene(rig, rng.uniform(650, 950), *tilts)
+    if kind == "far planes":
+        return plane_scene(rig, rng.uniform(1420, 3000), *tilts)
+    wall = plane_scene(rig, rng.uniform(1500, 2500), *tilts / 2)
+    if kind == "objects before a far wall":
+        scene = make_scene(rig, ("sculpture", "objects")[seed % 2], seed)
+        standing = scene.depth_mm < np.median(scene.depth_mm) - 8  # 12 mm and more off a background within 4
+        return Scene(kind, np.where(standing, scene.depth_mm, wall.depth_mm), np.where(standing, scene.albedo, 0.7))
+    background = plane_scene(rig, rng.uniform(1150, 1250), *tilts / 5)
+    y, x = np.indices(background.depth_mm.shape)
+    top, left = rng.integers(40, 240), rng.integers(40, 400)
+    box = (y >= top) & (y < top + 200) & (x >= left) & (x < left + 200)
+    return Scene(kind, np.where(box, rng.uniform(880, 950), background.depth_mm), np.full(box.shape, 0.8))
+
+
+OUTSIDE = ("near planes", "far planes", "objects before a far wall", "a box reaching out of the range")
+
+
 def textured(rig, patterns, scene, texture, seed: int):
     """The scene with every surface of albedo 0.8 times texture(rng, patterns, xp, yp): at each pixel, the
     projector column and row its surface point lies on."""
@@ -110,11 +138,12 @@ def textured(rig, patterns, scene, texture, seed: int):
     return Scene(scene.name, scene.depth_mm, np.where(scene.albedo > 0, albedo, 0.0))
 
 
-def measure(model, rig, patterns, scenes, texture=None) -> tuple[ErrorTotals, ErrorTotals]:
-    """The model's output on scenes rendered by rig showing patterns: totals at 1 mm and at 4 mm."""
+def measure(model, rig, patterns, scenes, texture=None, make=make_scene) -> tuple[ErrorTotals, ErrorTotals]:
+    """The model's output on scenes (make(rig, kind, seed)) rendered by rig showing patterns: totals at 1
+    mm and at 4 mm."""
     within, beyond = ErrorTotals(), ErrorTotals()
     for kind, seed in scenes:
-        scene = make_scene(rig, kind, seed)
+        scene = make(rig, kind, seed)
         if texture is not None:
             scene = textured(rig, patterns, scene, texture, seed)
         capture = render(rig, scene, patterns, np.random.default_rng(seed))
@@ -153,6 +182,10 @@ def main(argv=None):
             within, beyond = measure(decoding, rig, patterns, GEOMETRY_SCENES)
             cells.append(f"{within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
         print(f"{name:46} {cells[0]}   {cells[1]}")
+    print(f"\n{'outside the working range (4 scenes each)':46} {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
+    for kind in OUTSIDE:
+        within, beyond = measure(model, base, patterns, [(kind, s) for s in range(7101, 7105)], make=outside_scenes)
+        print(f"{kind:46} {within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
     print("cover: share of lit pixels given a depth; >1mm, >4mm: share of those off the exact depth by more")
 
 
