@@ -182,6 +182,8 @@ def test_export_parity_card_and_onnxruntime(trained, tmp_path):
         model(np.zeros((240, 320), np.uint8))
     with pytest.raises(ModelError, match="mono8 or mono16"):
         model(np.zeros((480, 640), np.float32))
+    with pytest.raises(ValueError, match="no phase-aware model"):  # a depth regressor has no rules to choose
+        choose_again(str(tmp_path / "m.onnx"), "data")
     (tmp_path / "m.onnx").write_bytes((tmp_path / "m.onnx").read_bytes()[:1000])
     with pytest.raises(ModelError, match="does not match its card"):
         DepthModel(tmp_path / "m.onnx")
@@ -441,6 +443,9 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     again = choose_again(str(tmp_path / "m2.onnx"), str(moved))
     assert again["decoding"] == card["decoding"] and again["sha256"] == card["sha256"] == sha256(tmp_path / "m2.onnx")
     assert DepthModel(tmp_path / "m2.onnx").min_confidence == card["decoding"]["min_confidence"]
+    (tmp_path / "m2.yaml").write_text((tmp_path / "m2.yaml").read_text().replace(card["sha256"], "0" * 64))
+    with pytest.raises(ValueError, match="does not match its card"):
+        choose_again(str(tmp_path / "m2.onnx"), str(moved))
 
 
 def test_the_code_comparison_measures_margins_as_the_decoder_does():
