@@ -47,6 +47,7 @@ from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits, code_sid
 from fpp_nodes.core.workflow import wrong_order_mm
 
 from .dataset import load_sample, reference_depth, sample_family, split_files
+from .models import CompositeNet
 from .train import load_checkpoint, load_initial_weights, model_from_checkpoint, model_from_config, predict
 
 PARITY_TOLERANCE_MM = 1e-3
@@ -161,8 +162,9 @@ def validation_counts(files, model, decoder, grids: tuple) -> dict:
     return rule_counts(samples(), decoder, *grids)
 
 
-def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: int = 200) -> dict:
-    """The fringe mask's floor, the smallest surface, the roughness limit and the refusal margin
+def choose_decoding(model, data: str, calibration: Calibration, limit: int = 200) -> dict:
+    """A phase-aware network's rules, decoded with calibration (CompositeDecoder for a CompositeNet,
+    else PhaseOrderDecoder): the fringe mask's floor, the smallest surface, the roughness limit and the refusal margin
     (composite decoders) and the order-confidence threshold that give the most coverage while the
     silent errors (output pixels off the exact depth, in a recorded set the multi-shot label, by more
     than 1 mm) stay within SILENT_ERROR_BUDGET over the validation split and within SILENT_ERROR_LIMIT
@@ -171,7 +173,8 @@ def choose_decoding(model, data: str, decoder, calibration: Calibration, limit: 
     lowest max_sideband of SIDEBAND_GRID that refuses at most SIDEBAND_REFUSAL_BUDGET of that output
     (none is striped like a code, so what it refuses there is its false alarms)."""
     files = split_files(data, "val")[:limit]
-    composite = hasattr(decoder, "min_surface_px")
+    composite = isinstance(model, CompositeNet)
+    decoder = (CompositeDecoder if composite else PhaseOrderDecoder)(calibration)
     surfaces, roughness, margins = (SURFACE_GRID, ROUGHNESS_GRID, MARGIN_GRID) if composite else ((0,), (np.inf,), (0,))
     wrong_order, step = wrong_order_mm(calibration), QualityLimits.max_depth_step_mm
     counts = parallel_counts(
@@ -348,10 +351,7 @@ def export(
     }
     if phase_aware:
         card["calibration"] = calibration
-        decoder = (CompositeDecoder if cfg.arch == "composite" else PhaseOrderDecoder)(
-            Calibration.from_dict(calibration)
-        )
-        card["decoding"] = choose_decoding(model, str(data), decoder, Calibration.from_dict(calibration))
+        card["decoding"] = choose_decoding(model, str(data), Calibration.from_dict(calibration))
     out.with_suffix(".yaml").write_text(yaml.safe_dump(card, sort_keys=False))
     return card
 
@@ -370,8 +370,7 @@ def choose_again(model_path: str, data: str) -> dict:
     model, cfg = model_from_config(card["training"]["config"])
     load_initial_weights(model, path, f"{cfg.arch}, width {cfg.width}")
     calibration = Calibration.from_dict(yaml.safe_load((Path(data) / "dataset.yaml").read_text())["calibration"])
-    decoder = (CompositeDecoder if cfg.arch == "composite" else PhaseOrderDecoder)(calibration)
-    card["decoding"] = choose_decoding(model.eval(), data, decoder, calibration)
+    card["decoding"] = choose_decoding(model.eval(), data, calibration)
     card_path.write_text(yaml.safe_dump(card, sort_keys=False))
     return card
 
