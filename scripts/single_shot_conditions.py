@@ -14,7 +14,8 @@ measures the sculpture and separated objects (fresh seeds) through that calibrat
 with the rig's calibration; beside it, the same decoded with the model card's calibration (the training
 rig's, what cnn_depth used before). Outside the working range: surfaces nearer or farther than the
 calibration's working range (1000-1350 mm in the default rig), where the composite's codes begin to
-repeat. Prints the coverage of the lit pixels and the share of the output
+repeat; beside the card's rules, the same without the rule against them (the decoder's max_outside).
+Prints the coverage of the lit pixels and the share of the output
 off the exact depth by more than 1 and 4 mm.
 
     python scripts/single_shot_conditions.py
@@ -47,7 +48,7 @@ CONDITIONS = {
     "projector gamma 1.8, patterns for 2.2": dict(projector_gamma=1.8),
     "gain 1.3 (bright surfaces clip)": dict(gain=1.3),
 }
-SCENES = [(family, seed) for family in ("sculpture", "freeform", "blocks", "bust") for seed in (7001, 7002)]
+PHOTOMETRY_FAMILIES = ("sculpture", "freeform", "blocks", "bust")
 
 
 def grating(contrast: float, which: int):
@@ -100,7 +101,7 @@ GEOMETRIES = {
     "a lens: k1 -0.9 (2.3 px of barrel distortion)": dict(distortion=(-0.9, 0.0, 2e-4, -2e-4, 0.0)),
 }
 # the families place surfaces by the simulated rig's depths; these two follow any rig's stand-off
-GEOMETRY_SCENES = [(kind, seed) for kind in ("sculpture", "objects") for seed in (7001, 7002)]
+GEOMETRY_FAMILIES = ("sculpture", "objects")
 
 
 def outside_scenes(rig, kind: str, seed: int) -> Scene:
@@ -157,20 +158,25 @@ def measure(model, rig, patterns, scenes, texture=None, make=make_scene) -> tupl
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", default=default_model_path())
+    parser.add_argument(
+        "--seed", type=int, default=7001, help="scenes of seeds seed and seed + 1, outside the range seed + 100 to 103"
+    )
     args = parser.parse_args(argv)
+    scenes = [(family, args.seed + i) for family in PHOTOMETRY_FAMILIES for i in (0, 1)]
+    geometry_scenes = [(kind, args.seed + i) for kind in GEOMETRY_FAMILIES for i in (0, 1)]
     base = Rig()
     patterns = base.pattern_set()  # pre-compensated for the default gamma, whatever the projector's is
     model = DepthModel(args.model)
-    print(f"{len(SCENES)} scenes (the sculpture and fresh seeds of freeform, blocks, bust), {args.model}")
+    print(f"{len(scenes)} scenes (the sculpture and fresh seeds of freeform, blocks, bust), {args.model}")
     print(f"{'photometry':46} {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
     for name, changes in CONDITIONS.items():
-        within, beyond = measure(model, replace(base, **changes), patterns, SCENES)
+        within, beyond = measure(model, replace(base, **changes), patterns, scenes)
         print(f"{name:46} {within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
     print(f"\n{'texture':46} {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
     for name, texture in TEXTURES.items():
-        within, beyond = measure(model, base, patterns, SCENES, texture)
+        within, beyond = measure(model, base, patterns, scenes, texture)
         print(f"{name:46} {within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
-    print(f"\n{len(GEOMETRY_SCENES)} scenes (fresh seeds of the sculpture and of separated objects)")
+    print(f"\n{len(geometry_scenes)} scenes (fresh seeds of the sculpture and of separated objects)")
     print(f"{'':46} {'the rig calibration':>21}   {'the card calibration':>21}")
     print(f"{'geometry':46} {'cover':>6} {'>1mm':>6} {'>4mm':>7}   {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
     for name, changes in GEOMETRIES.items():
@@ -179,13 +185,26 @@ def main(argv=None):
         calibration, _ = simulated_calibration(rig, patterns, 1, planes, working_range_mm=None)
         cells = []
         for decoding in (DepthModel(args.model, calibration=calibration), model):
-            within, beyond = measure(decoding, rig, patterns, GEOMETRY_SCENES)
+            within, beyond = measure(decoding, rig, patterns, geometry_scenes)
             cells.append(f"{within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
         print(f"{name:46} {cells[0]}   {cells[1]}")
-    print(f"\n{'outside the working range (4 scenes each)':46} {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
+    without = DepthModel(args.model)
+    without.decoder.max_outside = np.inf
+    print(f"\n{'':46} {'the card':>21}   {'without max_outside':>21}")
+    columns = f"{'cover':>6} {'>1mm':>6} {'>4mm':>7}"
+    print(f"{'outside the working range (4 scenes each)':46} {columns}   {columns}")
     for kind in OUTSIDE:
-        within, beyond = measure(model, base, patterns, [(kind, s) for s in range(7101, 7105)], make=outside_scenes)
-        print(f"{kind:46} {within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
+        cells = []
+        for decoding in (model, without):
+            within, beyond = measure(
+                decoding,
+                base,
+                patterns,
+                [(kind, s) for s in range(args.seed + 100, args.seed + 104)],
+                make=outside_scenes,
+            )
+            cells.append(f"{within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
+        print(f"{kind:46} {cells[0]}   {cells[1]}")
     print("cover: share of lit pixels given a depth; >1mm, >4mm: share of those off the exact depth by more")
 
 

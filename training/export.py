@@ -68,6 +68,14 @@ ROUGHNESS_GRID = (0.15, 0.2, 0.25, 0.3, 0.4, 0.5, np.inf)  # the composite's rou
 MARGIN_GRID = (0, 1, 2, 3)  # pixels around a refused pixel that are refused too (model.refusal_margin)
 SIDEBAND_GRID = (0.05, 0.06, 0.07, 0.08, 0.09, 0.1, 0.12, 0.15)  # CompositeDecoder.max_sideband
 SIDEBAND_REFUSAL_BUDGET = 0.005  # the share of the validation output the stripes rule may refuse
+OUTSIDE_GRID = (0.01, 0.02, 0.03, 0.05, 0.08, 0.12, 0.2)  # CompositeDecoder.max_outside
+# every validation surface lies in the working range: what the rule against surfaces outside it refuses there is
+# a false alarm, and one chosen at the edge of its false alarms on the training rig false-alarms on rigs unlike it
+OUTSIDE_REFUSAL_BUDGET = 0.0
+REFUSAL_BUDGETS = {
+    "max_sideband": (SIDEBAND_GRID, SIDEBAND_REFUSAL_BUDGET),
+    "max_outside": (OUTSIDE_GRID, OUTSIDE_REFUSAL_BUDGET),
+}
 OUTPUTS = {"phase": "fringe_order", "composite": "fringe_phases"}  # other architectures: depth_mm
 
 
@@ -82,12 +90,14 @@ def rule_counts(
     margins_px=(0,),
     wrong_order=np.inf,
     sidebands=(np.inf,),
+    outside=(np.inf,),
 ) -> dict:
-    """(floor, surface px, sideband, confidence, step, roughness, margin px) -> {family: [output pixels,
+    """(floor, surface px, sideband, outside, confidence, step, roughness, margin px) -> {family: [output pixels,
     silent errors (off the exact depth by > 1 mm), exact pixels, wrong orders (off by more than
     wrong_order mm)]} over samples of (image, exact depth, network outputs, family), decoded as
-    DepthModel.infer does with that fringe-mask floor, smallest surface and stripes' sidebands (a
-    composite decoder's min_surface_px and max_sideband), order-confidence threshold, edge-rule step,
+    DepthModel.infer does with that fringe-mask floor, smallest surface, stripes' sidebands and share
+    outside the range (a composite decoder's min_surface_px, max_sideband and max_outside),
+    order-confidence threshold, edge-rule step,
     roughness limit and refusal margin."""
     counts = {}
     composite = hasattr(decoder, "min_surface_px")
@@ -96,11 +106,11 @@ def rule_counts(
         ratio = code_sidebands(image, out) if composite and np.isfinite(sidebands).any() else None
         for m in floors:
             fringes = decoded_fringes(image, out, m, decoder)
-            for px, t in ((px, t) for px in surfaces_px for t in sidebands):
+            for px, t, o in ((px, t, o) for px in surfaces_px for t in sidebands for o in outside):
                 decode = decoder
                 if composite:
                     decode = copy.copy(decoder)
-                    decode.min_surface_px, decode.max_sideband = px, t
+                    decode.min_surface_px, decode.max_sideband, decode.max_outside = px, t, o
                 kept, confidence = decode(out, 0.0, fringes, ratio)
                 for s in steps_mm:
                     shown = trusted_single_shot(kept.copy(), image, max_depth_step_mm=s, fringes=fringes)
@@ -118,7 +128,7 @@ def rule_counts(
                                 far = cv2.distanceTransform((~refused).view(np.uint8), cv2.DIST_C, 3)
                             for k in margins_px:
                                 ok = given & (far > k) if k else given
-                                n = counts.setdefault((m, px, t, c, s, r, k), {}).setdefault(family, np.zeros(4))
+                                n = counts.setdefault((m, px, t, o, c, s, r, k), {}).setdefault(family, np.zeros(4))
                                 n += (
                                     ok.sum(),
                                     np.count_nonzero(wrong & ok),
@@ -171,7 +181,9 @@ def choose_decoding(model, data: str, calibration: Calibration, limit: int = 200
     in each of its scene families, and the wrong orders within WRONG_ORDER_BUDGET: chosen on
     validation data, never on the test set. Then, with those, a composite decoder's stripes rule: the
     lowest max_sideband of SIDEBAND_GRID that refuses at most SIDEBAND_REFUSAL_BUDGET of that output
-    (none is striped like a code, so what it refuses there is its false alarms)."""
+    (none is striped like a code, so what it refuses there is its false alarms); then, with that too,
+    the lowest max_outside of OUTSIDE_GRID that refuses none of it (OUTSIDE_REFUSAL_BUDGET: every
+    surface of the set lies in the working range)."""
     files = split_files(data, "val")[:limit]
     composite = isinstance(model, CompositeNet)
     decoder = (CompositeDecoder if composite else PhaseOrderDecoder)(calibration)
@@ -180,7 +192,7 @@ def choose_decoding(model, data: str, calibration: Calibration, limit: int = 200
     counts = parallel_counts(
         files, model, decoder, (FLOOR_GRID, CONFIDENCE_GRID, (step,), surfaces, roughness, margins, wrong_order)
     )
-    rows = {(m, px, c, r, k): rule_rates(n) for (m, px, _, c, _, r, k), n in counts.items()}
+    rows = {(m, px, c, r, k): rule_rates(n) for (m, px, _, _, c, _, r, k), n in counts.items()}
     good = [
         key
         for key, r in rows.items()
@@ -197,25 +209,16 @@ def choose_decoding(model, data: str, calibration: Calibration, limit: int = 200
     chosen = {"min_confidence": confidence, "min_modulation": floor}
     if composite:
         chosen |= {"min_surface_px": surface, "max_roughness_mm": rough, "margin_px": margin}
-        grids = (
-            (floor,),
-            (confidence,),
-            (step,),
-            (surface,),
-            (rough,),
-            (margin,),
-            wrong_order,
-            (*SIDEBAND_GRID, np.inf),
-        )
-        by_sideband = {t: n for (_, _, t, *_), n in parallel_counts(files, model, decoder, grids).items()}
-        output = {t: sum(n[0] for n in by_family.values()) for t, by_family in by_sideband.items()}
-        refused = {t: round(float(1 - output[t] / output[np.inf]) if output[np.inf] else 0.0, 6) for t in SIDEBAND_GRID}
+        fixed = ((floor,), (confidence,), (step,), (surface,), (rough,), (margin,), wrong_order)
+        max_sideband, refused = lowest_within_budget(files, model, decoder, fixed, "max_sideband", np.inf)
+        max_outside, outside_refused = lowest_within_budget(files, model, decoder, fixed, "max_outside", max_sideband)
         chosen |= {
-            "max_sideband": float(
-                min((t for t in SIDEBAND_GRID if refused[t] <= SIDEBAND_REFUSAL_BUDGET), default=np.inf)
-            ),
+            "max_sideband": max_sideband,
             "sideband_refusal_budget": SIDEBAND_REFUSAL_BUDGET,
-            "sidebands": {str(t): r for t, r in refused.items()},  # the share of the output each would refuse
+            "sidebands": refused,  # the share of the output each would refuse
+            "max_outside": max_outside,
+            "outside_refusal_budget": OUTSIDE_REFUSAL_BUDGET,
+            "outside": outside_refused,
         }
     return chosen | {
         "chosen_on": f"{data} val, {len(files)} samples",
@@ -232,6 +235,25 @@ def choose_decoding(model, data: str, calibration: Calibration, limit: int = 200
             for k in margins
         },
     }
+
+
+def lowest_within_budget(files, model, decoder, fixed: tuple, rule: str, other: float) -> tuple[float, dict]:
+    """A refusal rule's threshold, rule max_sideband or max_outside: with the other rules fixed
+    (rule_counts' arguments up to wrong_order) and the other refusal rule at other, the lowest of its
+    grid that refuses at most its budget (REFUSAL_BUDGETS) of the output, and the share each would refuse
+    (the validation scenes show neither stripes like a code nor surfaces outside the range, so what a
+    refusal rule refuses there is its false alarms)."""
+    thresholds, budget = REFUSAL_BUDGETS[rule]
+    grid = (*thresholds, np.inf)
+    sidebands, outside = (grid, (other,)) if rule == "max_sideband" else ((other,), grid)
+    counts = parallel_counts(files, model, decoder, (*fixed, sidebands, outside))
+    output = {
+        (o if rule == "max_outside" else t): sum(n[0] for n in by_family.values())
+        for (_, _, t, o, *_), by_family in counts.items()
+    }
+    refused = {x: float(1 - output[x] / output[np.inf]) if output[np.inf] else 0.0 for x in thresholds}
+    lowest = min((x for x, r in refused.items() if r <= budget), default=np.inf)
+    return float(lowest), {str(x): round(r, 6) for x, r in refused.items()}
 
 
 def parallel_counts(files, model, decoder, grids: tuple) -> dict:

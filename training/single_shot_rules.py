@@ -55,6 +55,7 @@ def main():
         floors=(floor,),
         surfaces_px=(surface,),
         sidebands=(model.max_sideband,),
+        outside=(model.max_outside,),
         roughness_mm=(rough,),
         margins_px=(margin,),
         wrong_order=wrong_order_mm(model.card_calibration),
@@ -62,7 +63,7 @@ def main():
 
     def count(**varied):
         more = rule_counts(outputs, model.decoder, confidences=CONFIDENCES, **(shipped | varied))
-        counts.update({(m, px, c, s, r, k): n for (m, px, _, c, s, r, k), n in more.items()})  # one sideband rule
+        counts.update({(m, px, c, s, r, k): n for (m, px, _, _, c, s, r, k), n in more.items()})  # one of each refusal
 
     counts = {}
     count(steps_mm=STEPS_MM)

@@ -24,6 +24,8 @@ from training.export import (
     CONFIDENCE_GRID,
     FLOOR_GRID,
     MARGIN_GRID,
+    OUTSIDE_GRID,
+    OUTSIDE_REFUSAL_BUDGET,
     ROUGHNESS_GRID,
     SIDEBAND_GRID,
     SIDEBAND_REFUSAL_BUDGET,
@@ -422,6 +424,10 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     sidebands = card["decoding"]["sidebands"]
     assert model.decoder.max_sideband == card["decoding"]["max_sideband"] in (*SIDEBAND_GRID, np.inf)
     assert all((sidebands[str(t)] <= SIDEBAND_REFUSAL_BUDGET) == (t >= model.max_sideband) for t in SIDEBAND_GRID)
+    # and the rule against surfaces outside the working range, within its budget
+    outside = card["decoding"]["outside"]
+    assert model.decoder.max_outside == card["decoding"]["max_outside"] in (*OUTSIDE_GRID, np.inf)
+    assert all((outside[str(t)] <= OUTSIDE_REFUSAL_BUDGET) == (t >= model.max_outside) for t in OUTSIDE_GRID)
     rule = rule_name(model.min_modulation, model.decoder.min_surface_px, model.max_roughness_mm, model.margin_px)
     chosen = card["decoding"]["validation"][rule][str(model.min_confidence)]
     within = chosen["silent_errors"] <= SILENT_ERROR_BUDGET and chosen["wrong_orders"] <= WRONG_ORDER_BUDGET

@@ -229,6 +229,53 @@ def code_phase(carrier, codes, intercepts, rates, spacings, lowest, low, high, m
     return own
 
 
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+def outside_phase(where, carrier, codes, intercepts, rates, spacings, lowest, turn, low, high, turns, max_miss):
+    """reconstruct.CompositeDecoder.outside_phase at the flat indices where of the maps: carrier, lowest,
+    turn (the coarse code's turn in carrier phase), low and high flat (H W,); codes, intercepts, rates
+    and spacings (K, H W), coarse code first; turns, whole turns from lowest. In each turn's window the
+    one order the coarse code fits in its first turn from the window's start, moved by each finer code
+    as code_phase does and rounded; of those outside [low, high] that all codes fit within max_miss
+    (root sum of squares), the one they fit best. NaN where none. The pixels are gathered first and
+    are the inmost loop, so that each loop vectorizes."""
+    count, n = codes.shape[0], where.shape[0]
+    phase, first, step = np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32)
+    code, a, b = np.empty((count, n), np.float32), np.empty((count, n), np.float32), np.empty((count, n), np.float32)
+    s = np.empty((count, n), np.float32)
+    for c in range(n):
+        i = where[c]
+        phase[c], first[c], step[c] = carrier[i], lowest[i], turn[i]
+        for k in range(count):
+            code[k, c], a[k, c], b[k, c], s[k, c] = codes[k, i], intercepts[k, i], rates[k, i], spacings[k, i]
+    best = np.full(n, np.nan, np.float32)
+    least = np.full(n, np.float32(max_miss * max_miss), np.float32)
+    left = np.empty((count, n), np.float32)
+    base, j = np.empty(n, np.float32), np.empty(n, np.float32)
+    for t in turns:
+        for c in range(n):
+            start = first[c] + np.float32(t) * step[c]
+            base[c] = phase[c] + _TWO_PI * np.float32(np.ceil((start - phase[c]) * _INV_TWO_PI))  # the window's lowest
+        for k in range(count):
+            for c in range(n):
+                left[k, c] = code[k, c] - a[k, c] - b[k, c] * base[c]
+        for c in range(n):
+            j[c] = (left[0, c] - _TWO_PI * np.floor(left[0, c] * _INV_TWO_PI)) / s[0, c]
+        for k in range(1, count):
+            for c in range(n):
+                miss = left[k, c] - j[c] * s[k, c]
+                j[c] += (miss - _TWO_PI * np.float32(np.rint(miss * _INV_TWO_PI))) / s[k, c]
+        for c in range(n):
+            order = np.float32(np.rint(j[c]))
+            miss = np.float32(0)
+            for k in range(count):
+                miss += _wrapped_square(left[k, c] - order * s[k, c])
+            candidate = base[c] + _TWO_PI * order
+            outside = (candidate < low[where[c]]) | (candidate > high[where[c]])
+            if outside & (miss <= least[c]):
+                least[c], best[c] = miss, candidate
+    return best
+
+
 @numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
 def _refine(j, left, spacings, r):
     """j (a row) moved by each finer code to the nearest value it fits exactly, then rounded."""

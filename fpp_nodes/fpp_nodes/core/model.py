@@ -116,6 +116,7 @@ class DepthModel:
                 self.min_surface_px = int(self.card["decoding"].get("min_surface_px", 0))
                 self.margin_px = int(self.card["decoding"].get("margin_px", 0))  # cards before it: none
                 self.max_sideband = float(self.card["decoding"].get("max_sideband", np.inf))  # ... none
+                self.max_outside = float(self.card["decoding"].get("max_outside", np.inf))  # ... none
             except (KeyError, TypeError, ValueError) as e:  # CalibrationError is a ValueError
                 raise ModelError(
                     f"model card {card_path} lacks the calibration or decoding of a phase-aware "
@@ -162,7 +163,9 @@ class DepthModel:
                 self.decoder = (
                     PhaseOrderDecoder(self.card_calibration)
                     if self.output == "fringe_order"
-                    else CompositeDecoder(calibration or self.card_calibration, self.min_surface_px, self.max_sideband)
+                    else CompositeDecoder(
+                        calibration or self.card_calibration, self.min_surface_px, self.max_sideband, self.max_outside
+                    )
                 )
             except PhaseError as e:
                 whose = "its card's" if calibration is None or self.output == "fringe_order" else "the rig's"
@@ -174,15 +177,17 @@ class DepthModel:
     def warnings(self) -> dict[str, str]:
         """After a frame of a composite model: {what the frame was: what to say} where more than
         OUTSIDE_WARNING of its pixels with fringes named no order of the working range
-        (CompositeDecoder.outside_range), and where it refused surfaces for an albedo striped like the
-        pattern's code gratings (CompositeDecoder.striped)."""
+        (CompositeDecoder.outside_range; with the share it refused there, CompositeDecoder.beyond), and
+        where it refused surfaces for an albedo striped like the pattern's code gratings
+        (CompositeDecoder.striped)."""
         said = {}
         if (outside := getattr(self.decoder, "outside_range", 0.0)) > OUTSIDE_WARNING:
             near, far = (self.calibration or self.card_calibration).working_range_mm
+            beyond = getattr(self.decoder, "beyond", 0.0)
             said["frames outside the working range"] = (
                 f"the codes of {outside:.0%} of the pixels with fringes name no order of the working range "
-                f"{near:g}-{far:g} mm: is the scene, or part of it, nearer or farther (beyond the range the "
-                "codes repeat, and one image gives wrong depths there too), or are its codes unreadable?"
+                f"{near:g}-{far:g} mm (and {beyond:.0%} more were refused where they repeat beyond it): is the "
+                "scene, or part of it, nearer or farther, or are its codes unreadable?"
             )
         if striped := getattr(self.decoder, "striped", 0.0):
             said["frames with surfaces striped like the pattern"] = (

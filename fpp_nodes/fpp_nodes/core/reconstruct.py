@@ -228,6 +228,21 @@ GRID_STEP = 8
 ADOPTION_VOTE = 0.75
 
 
+def steps_16(low: np.ndarray, high: np.ndarray, spare: float) -> tuple[float, float]:
+    """(base, step) that put every value from low to high, 0, and spare beyond either end, in 65536
+    steps (median_16)."""
+    base = min(0.0, float(low.min())) - spare
+    return base, (float(high.max()) + spare - base) / 65535
+
+
+def median_16(phase: np.ndarray, base: float, step: float) -> np.ndarray:
+    """cv2.medianBlur(phase, 5) within step / 2, phase quantized as (phase - base) / step into 16 bits:
+    quantizing keeps the phases' order, so the median of the steps is the median's step."""
+    steps = cv2.addWeighted(phase, 1 / step, phase, 0, -base / step, dtype=cv2.CV_16U)
+    steps = cv2.medianBlur(steps, 5)
+    return cv2.addWeighted(steps, step, steps, 0, base, dtype=cv2.CV_32F)
+
+
 class CompositeDecoder:
     """The composite pattern's phases (the carrier's and each code grating's) -> depth, for a
     calibration with code models.
@@ -261,13 +276,26 @@ class CompositeDecoder:
     An albedo striped like a code grating moves that code's phase over the whole stripes, and the
     surface's codes then agree on a wrong order. Given the image's code sidebands (code_sidebands), a
     surface more than half of whose pixels show sidebands of at least max_sideband has confidence 0.
+    Beyond the working range the codes repeat (the coarse code's turn, shifted by each pixel's row
+    drift), so a surface nearer or farther than the range names wrong orders inside it on bands of
+    pixels, between bands whose codes name none. Of the pixels whose codes name no order of the range,
+    those whose codes fit an order outside it (outside_phase) that their neighbours' fit too (within pi
+    of the 5 x 5 median) lie on a surface outside the range: a pixel where more than max_outside of the
+    pixels with fringes around it (outside_share) do has confidence 0. Codes too noisy to name an order
+    fit scattered orders outside it, which their neighbours' seldom share.
     After each call: outside_range, the share of the pixels with fringes whose codes named no order
-    of the working range (a scene too near or too far, or codes too noisy to tell); striped, the share
-    on surfaces refused for their stripes.
+    of the working range (a scene too near or too far, or codes too noisy to tell); striped and beyond,
+    the shares refused for their stripes and for lying on surfaces outside the range.
     """
 
-    def __init__(self, calibration: Calibration, min_surface_px: int = 0, max_sideband: float = np.inf):
-        self.min_surface_px, self.max_sideband = min_surface_px, max_sideband
+    def __init__(
+        self,
+        calibration: Calibration,
+        min_surface_px: int = 0,
+        max_sideband: float = np.inf,
+        max_outside: float = np.inf,
+    ):
+        self.min_surface_px, self.max_sideband, self.max_outside = min_surface_px, max_sideband, max_outside
         if not calibration.code_models:
             raise PhaseError("the composite decoder needs a calibration made with the composite pattern (code models)")
         if calibration.working_range_mm is None:
@@ -315,20 +343,22 @@ class CompositeDecoder:
         self.low = (np.minimum(ends[0], ends[1]) - np.pi).astype(np.float32)
         self.high = (np.maximum(ends[0], ends[1]) + np.pi).astype(np.float32)
         self.min_separation = self._separation(grid, *(e[on_grid] for e in ends))
+        # the coarse code's turn per pixel (rad of carrier phase), and the turns of it that hold the orders of
+        # every depth from half the near end of the range to infinity (where the phase converges)
+        self.turn = (TWO_PI * TWO_PI / self.code_terms[2][0]).astype(np.float32)
+        turns = [(calibration.model.phase_at_depth(z, u, v) - lowest) / self.turn for z in (near / 2, 1e9)]
+        self.outside_turns = np.arange(np.floor(np.nanmin(turns)), np.ceil(np.nanmax(turns)), dtype=np.int64)
         self.terms = depth_terms(calibration)
-        # the phases' 5 x 5 median in 16 bits, a third of float32's time: every phase the median sees
-        # (0 where no fringes, a turn either side of the range) in 65536 steps (about 0.01 rad)
-        self.median_base = min(0.0, float(self.low.min())) - 2 * TWO_PI
-        self.median_step = (float(self.high.max()) + 2 * TWO_PI - self.median_base) / 65535
+        # the phases' 5 x 5 median in 16 bits (median_16), a third of float32's time: every phase the median
+        # sees (0 where no fringes, a turn either side of the range) in 65536 steps (about 0.01 rad); the
+        # orders outside the range likewise (a finer code can move one 3 orders past its turn's window:
+        # 0.03 rad steps in the default rig)
+        self.median_steps = steps_16(self.low, self.high, 2 * TWO_PI)
+        first, last = (self.lowest + self.turn * t for t in (self.outside_turns[0], self.outside_turns[-1] + 1))
+        self.outside_steps = steps_16(np.minimum(first, last), np.maximum(first, last), 4 * TWO_PI)
 
     def median(self, phase: np.ndarray) -> np.ndarray:
-        """cv2.medianBlur(phase, 5) within median_step / 2: quantizing keeps the phases' order, so the
-        median of the steps is the median's step."""
-        steps = cv2.addWeighted(
-            phase, 1 / self.median_step, phase, 0, -self.median_base / self.median_step, dtype=cv2.CV_16U
-        )
-        steps = cv2.medianBlur(steps, 5)
-        return cv2.addWeighted(steps, self.median_step, steps, 0, self.median_base, dtype=cv2.CV_32F)
+        return median_16(phase, *self.median_steps)
 
     @staticmethod
     def _rows(calibration: Calibration, u, v):
@@ -374,6 +404,40 @@ class CompositeDecoder:
             carrier, ordered, *self.code_terms, self.lowest, self.low, self.high, self.min_separation / 2
         )
 
+    def outside_phase(self, carrier: np.ndarray, codes: list[np.ndarray], where: np.ndarray) -> np.ndarray:
+        """At pixels where (flat indices), the absolute carrier phase of the order outside the working
+        range that their codes fit best within code_phase's margin: its candidates a turn of the coarse
+        code further each time through outside_turns (the orders of every depth from half the range's
+        near end on), one per turn (fused.outside_phase). NaN where none fits."""
+
+        def flat(a):  # a map (or a stack of maps) as rows of pixels, not copied
+            return a.reshape(*a.shape[:-2], -1)
+
+        return fused.outside_phase(
+            where,
+            flat(carrier),
+            np.stack([flat(codes[i]) for i in self.code_order]),
+            *(flat(t) for t in self.code_terms),
+            *(flat(a) for a in (self.lowest, self.turn, self.low, self.high)),
+            self.outside_turns,
+            self.min_separation / 2,
+        )
+
+    def beyond_range(self, carrier, codes, unsure: np.ndarray, fringes: np.ndarray) -> np.ndarray:
+        """Pixels among the surfaces outside the working range: where more than max_outside of the pixels
+        with fringes around them (outside_share) are pixels of unsure (flat indices of those whose codes
+        name no order of the range) whose codes fit an order outside it within pi of the median of the
+        5 x 5 pixels' fits around them (0 where none)."""
+        outside = np.zeros(carrier.shape, np.float32)
+        fit = self.outside_phase(carrier, codes, unsure)
+        found = np.isfinite(fit)
+        fit, unsure = fit[found], unsure[found]
+        np.put(outside, unsure, fit)
+        median = median_16(outside, *self.outside_steps).ravel()[unsure]
+        agreeing = np.zeros(carrier.shape, bool)
+        np.put(agreeing, unsure[np.abs(fit - median) < np.pi], True)
+        return outside_share(agreeing, fringes) > self.max_outside
+
     def __call__(
         self,
         out: np.ndarray,
@@ -402,6 +466,9 @@ class CompositeDecoder:
         vote = cv2.boxFilter(agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW), borderType=cv2.BORDER_REPLICATE)
         # codes too noisy to name any order (not a contradicting one): the neighbourhood's, inside the range
         unsure = np.flatnonzero(fringes & ~ordered)  # a few: indices, not whole-image passes
+        beyond = np.zeros_like(fringes)
+        if np.isfinite(self.max_outside) and unsure.size:
+            beyond = self.beyond_range(carrier, codes, unsure, fringes)
         order = local.ravel()[unsure]
         inside = (order >= self.low.ravel()[unsure]) & (order <= self.high.ravel()[unsure])
         adopted = unsure[inside & (vote.ravel()[unsure] >= ADOPTION_VOTE)]
@@ -421,11 +488,37 @@ class CompositeDecoder:
             share[striped] = 0
             self.striped = float(np.sum(size[striped])) / max(shown, 1)
         confidence = np.minimum(vote, np.take(share, surface))
+        confidence[beyond] = 0
+        self.beyond = np.count_nonzero(beyond & agree) / max(shown, 1)  # the orders it took away
         np.copyto(confidence, np.float32(np.nan), where=~fringes)
         ca, cb, da, db = self.terms
         depth = (ca + cb * own) / (da + db * own)
-        np.copyto(depth, np.float32(np.nan), where=~(agree & (confidence >= min_confidence)))
+        np.copyto(depth, np.float32(np.nan), where=~(agree & (confidence >= min_confidence)) | beyond)
         return depth, confidence
+
+
+# The window outside_share takes: OUTSIDE_WINDOW blocks of OUTSIDE_BLOCK pixels (120 px), about two of the
+# bands an out-of-range plane names orders on and none (30-70 px each in the default rig).
+OUTSIDE_BLOCK, OUTSIDE_WINDOW = 8, 15
+
+
+def outside_share(outside: np.ndarray, fringes: np.ndarray) -> np.ndarray:
+    """Per pixel, the share of the pixels with fringes in the window around it (OUTSIDE_WINDOW blocks)
+    that are pixels of outside (a mask); taken on blocks and resized back."""
+    height, width = fringes.shape
+    small = (max(width // OUTSIDE_BLOCK, 1), max(height // OUTSIDE_BLOCK, 1))
+    sums = [
+        cv2.boxFilter(
+            cv2.resize(mask.astype(np.float32), small, interpolation=cv2.INTER_AREA),
+            -1,
+            (OUTSIDE_WINDOW, OUTSIDE_WINDOW),
+            normalize=False,
+            borderType=cv2.BORDER_CONSTANT,
+        )
+        for mask in (outside, fringes)
+    ]
+    share = sums[0] / np.maximum(sums[1], np.float32(1e-6))
+    return cv2.resize(share, (width, height), interpolation=cv2.INTER_LINEAR)
 
 
 def order_surfaces(absolute: np.ndarray, fringes: np.ndarray, max_step: float = np.pi) -> tuple[np.ndarray, np.ndarray]:

@@ -161,9 +161,10 @@ def test_bad_frames_into_the_single_shot_path(ros_graph):
         assert robot.spin_until(lambda: diagnostics.value("/cnn/cnn_depth", "frames in") == str(n), 60), kind
     assert robot.spin_until(lambda: len(depths) == 6, 60)
     assert [stamp_ns(d.header.stamp) // 1_000_000_000 for d in depths] == [6, 7, 8, 9, 10, 11]  # dark, ..., good
-    dark, saturated, beyond, _, stripes, fine = (image_to_numpy(d) for d in depths)  # _: wrong depths, warned
+    dark, saturated, beyond, repeat, stripes, fine = (image_to_numpy(d) for d in depths)
     assert np.isnan(dark).all() and np.isnan(saturated).all()  # no fringes, no made-up surface
     assert np.isnan(beyond).all()  # not the nearest order inside the working range
+    assert np.isnan(repeat).all()  # not the orders inside it that its codes name again (on 43% of it)
     assert np.isnan(stripes).all()  # its codes are the stripes': an order off, so none
     truth_m = np.where(capture.valid, capture.depth_mm / 1000, np.nan)
     ok = np.isfinite(fine) & np.isfinite(truth_m)
