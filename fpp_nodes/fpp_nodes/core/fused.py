@@ -240,11 +240,12 @@ def outside_phase(where, carrier, codes, intercepts, rates, spacings, lowest, tu
     are the inmost loop, so that each loop vectorizes."""
     count, n = codes.shape[0], where.shape[0]
     phase, first, step = np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32)
+    lo, hi = np.empty(n, np.float32), np.empty(n, np.float32)
     code, a, b = np.empty((count, n), np.float32), np.empty((count, n), np.float32), np.empty((count, n), np.float32)
     s = np.empty((count, n), np.float32)
     for c in range(n):
         i = where[c]
-        phase[c], first[c], step[c] = carrier[i], lowest[i], turn[i]
+        phase[c], first[c], step[c], lo[c], hi[c] = carrier[i], lowest[i], turn[i], low[i], high[i]
         for k in range(count):
             code[k, c], a[k, c], b[k, c], s[k, c] = codes[k, i], intercepts[k, i], rates[k, i], spacings[k, i]
     best = np.full(n, np.nan, np.float32)
@@ -270,7 +271,7 @@ def outside_phase(where, carrier, codes, intercepts, rates, spacings, lowest, tu
             for k in range(count):
                 miss += _wrapped_square(left[k, c] - order * s[k, c])
             candidate = base[c] + _TWO_PI * order
-            outside = (candidate < low[where[c]]) | (candidate > high[where[c]])
+            outside = (candidate < lo[c]) | (candidate > hi[c])
             if outside & (miss <= least[c]):
                 least[c], best[c] = miss, candidate
     return best
