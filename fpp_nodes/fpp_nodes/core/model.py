@@ -184,10 +184,11 @@ class DepthModel:
         if (outside := getattr(self.decoder, "outside_range", 0.0)) > OUTSIDE_WARNING:
             near, far = (self.calibration or self.card_calibration).working_range_mm
             beyond = getattr(self.decoder, "beyond", 0.0)
+            refused = f" (and {beyond:.1%} more were refused where they repeat beyond it)" if round(beyond, 3) else ""
             said["frames outside the working range"] = (
                 f"the codes of {outside:.0%} of the pixels with fringes name no order of the working range "
-                f"{near:g}-{far:g} mm (and {beyond:.0%} more were refused where they repeat beyond it): is the "
-                "scene, or part of it, nearer or farther, or are its codes unreadable?"
+                f"{near:g}-{far:g} mm{refused}: is the scene, or part of it, nearer or farther, or are its "
+                "codes unreadable?"
             )
         if striped := getattr(self.decoder, "striped", 0.0):
             said["frames with surfaces striped like the pattern"] = (

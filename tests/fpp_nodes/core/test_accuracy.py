@@ -197,7 +197,8 @@ def test_the_shipped_single_shot_model_says_nan_beyond_its_working_range(rig, pa
     """Planes 30 mm before and 30 and 70 mm beyond the working range (1000-1350 mm): the decoder used to
     give them the nearest order inside, every pixel an order or more off; now they say NaN: at most
     0.5% of the lit pixels get a depth (measured 0%). A plane tilted across the near end keeps its depth
-    inside the range (measured 0% off by more than 1 mm) and says NaN beyond it."""
+    inside the range (measured 0% off by more than 1 mm) and says NaN beyond it. The warning names the
+    share the rule against repeating codes refused only where it refused some (a plane at 1800 mm)."""
     from fpp_nodes.core.model import DepthModel, default_model_path
 
     model = DepthModel(default_model_path())
@@ -211,10 +212,17 @@ def test_the_shipped_single_shot_model_says_nan_beyond_its_working_range(rig, pa
         off = np.abs(depth - scene.depth_mm)[given] > 1.0
         if tilt == 0.0:
             assert given.mean() <= 0.005 * lit.mean(), (z, given.sum())
+            # the codes name no order here, so the rule against repeating codes had nothing to refuse
+            warning = model.warnings()["frames outside the working range"]
+            assert "name no order of the working range 1000-1350 mm:" in warning, warning
         else:
             inside = lit & (scene.depth_mm > near + 10)
             assert off.mean() <= 0.005 and given[inside].mean() > 0.9, (off.mean(), given[inside].mean())
             assert not given[scene.depth_mm < near - 10].any()
+    # at 1800 mm the codes repeat and name orders inside the range, which the rule refuses: the warning says how many
+    model(render(rig, plane_scene(rig, 1800.0), patterns, np.random.default_rng(2)).images[patterns.single_shot_index])
+    warning = model.warnings()["frames outside the working range"]
+    assert f"(and {model.decoder.beyond:.1%} more were refused" in warning and model.decoder.beyond > 0.1, warning
 
 
 def test_the_shipped_single_shot_model_measures_a_rig_at_another_standoff_through_its_calibration(
