@@ -12,11 +12,11 @@ from the grating except through what the albedo does to the other gratings). Geo
 calibrated from simulated noisy planes 60 mm either side of its stand-off (its working range) and
 measures the sculpture and separated objects (fresh seeds) through that calibration, as cnn_depth does
 with the rig's calibration; beside it, the same decoded with the model card's calibration (the training
-rig's, what cnn_depth used before). Outside the working range: surfaces nearer or farther than the
-calibration's working range (1000-1350 mm in the default rig), where the composite's codes begin to
-repeat; beside the card's rules, the same without the rule against them (the decoder's max_outside).
-Prints the coverage of the lit pixels and the share of the output
-off the exact depth by more than 1 and 4 mm.
+rig's, what cnn_depth used before; '-' for cameras of another size, which it cannot read). Outside
+the working range: surfaces nearer or farther than the calibration's working range (1000-1350 mm in the
+default rig), where the composite's codes begin to repeat; beside the card's rules, the same without
+the rule against them (the decoder's max_outside). Prints the coverage of the lit pixels and the share
+of the output off the exact depth by more than 1 and 4 mm.
 
     python scripts/single_shot_conditions.py
 """
@@ -99,6 +99,9 @@ GEOMETRIES = {
     "projector field 300 mm (fringes 1.36x wider)": dict(projector_field_mm=300.0),
     "camera field 124 mm (fringes 1.25x wider)": dict(focal_px=Rig.focal_px * 1.25),
     "a lens: k1 -0.9 (2.3 px of barrel distortion)": dict(distortion=(-0.9, 0.0, 2e-4, -2e-4, 0.0)),
+    # the network reads the image resampled to its trained fringe period (DepthModel.use)
+    "camera 1280x960, same field (fringes 2x wider)": dict(width=1280, height=960, focal_px=Rig.focal_px * 2),
+    "camera 320x240, same field (fringes 2x finer)": dict(width=320, height=240, focal_px=Rig.focal_px / 2),
 }
 # the families place surfaces by the simulated rig's depths; these two follow any rig's stand-off
 GEOMETRY_FAMILIES = ("sculpture", "objects")
@@ -185,6 +188,9 @@ def main(argv=None):
         calibration, _ = simulated_calibration(rig, patterns, 1, planes, working_range_mm=None)
         cells = []
         for decoding in (DepthModel(args.model, calibration=calibration), model):
+            if decoding.size != (rig.width, rig.height):  # the card's calibration: its camera's size only
+                cells.append(f"{'-':>6} {'-':>6} {'-':>7}")
+                continue
             within, beyond = measure(decoding, rig, patterns, geometry_scenes)
             cells.append(f"{within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
         print(f"{name:46} {cells[0]}   {cells[1]}")

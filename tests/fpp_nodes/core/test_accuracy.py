@@ -266,6 +266,22 @@ def test_the_shipped_single_shot_model_reads_any_camera_at_the_fringe_period_it_
         assert cover > 0.9 and off <= 0.005, (kind, cover, off)
 
 
+def test_the_shipped_single_shot_model_reads_a_camera_whose_fringes_are_finer_than_in_training(rig, patterns):
+    """A 320x240 camera with the training rig's field: its fringes are 4.6 px, half the trained period,
+    so the network reads the image at twice its size; two scenes it never saw keep over 80% of the lit
+    pixels (measured 87.9 and 91.0%) with at most 0.5% off by more than 1 mm (none)."""
+    from fpp_nodes.core.model import DepthModel, default_model_path
+
+    small = replace(rig, width=320, height=240, focal_px=rig.focal_px / 2)
+    planes = [small.standoff_mm + dz for dz in (-60.0, -30.0, 0.0, 30.0, 60.0)]
+    calibration, _ = simulated_calibration(small, patterns, 1, planes, working_range_mm=None)
+    model = DepthModel(default_model_path(), calibration=calibration)
+    assert model.scale == pytest.approx(2.0, abs=0.02) and model.input_size == (641, 481)
+    for kind, seed in (("sculpture", 7001), ("objects", 7002)):
+        cover, off, _ = single_shot_errors(model, small, patterns, kind, seed)
+        assert cover > 0.8 and off <= 0.005, (kind, cover, off)
+
+
 def single_shot_errors(model, rig, patterns, kind: str, seed: int) -> tuple[float, float, float]:
     """A single-shot model on one scene rendered by rig: the share of the lit pixels given a depth, the
     share of those off the exact depth by more than 1 mm, and their RMSE (mm)."""
