@@ -36,6 +36,7 @@ from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.model import (
     MIN_MODULATION,
     PhaseOrderDecoder,
+    confident,
     decoded_fringes,
     local_depth,
     network_input,
@@ -122,7 +123,7 @@ def rule_counts(
                             smooth, error = np.isfinite(shown), np.abs(shown - truth)
                         wrong, guessed = exact & (error > 1.0), exact & (error > wrong_order)
                         for c in confidences:
-                            given = smooth & (confidence >= c)
+                            given = smooth & confident(confidence, c)
                             if max(margins_px) > 0:  # how far each pixel is from a refused one (refusal_margin)
                                 refused = fringes & ~given
                                 far = cv2.distanceTransform((~refused).view(np.uint8), cv2.DIST_C, 3)

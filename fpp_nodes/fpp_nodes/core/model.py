@@ -253,11 +253,18 @@ class DepthModel:
             # every pixel whose order its neighbours share
             depth, confidence = self.decoder(out, 0.0, fringes, sidebands)
             depth = trusted_single_shot(depth, image, fringes=fringes, max_roughness_mm=self.max_roughness_mm)
-            depth[~(confidence >= self.min_confidence)] = np.nan
+            depth[~confident(confidence, self.min_confidence)] = np.nan
             refusal_margin(depth, fringes, self.margin_px)
             return depth, confidence
         depth = cv2.resize(out[0], self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else out[0]
         return trusted_single_shot(depth, image), None
+
+
+def confident(confidence: np.ndarray, min_confidence: float) -> np.ndarray:
+    """The pixels whose order confidence reaches min_confidence, never one at 0: a rule refused it (an
+    albedo striped like the codes, too small a surface, a surface outside the working range), which a
+    threshold of 0 must not undo."""
+    return (confidence >= min_confidence) & (confidence > 0)
 
 
 def pixel_shuffle(x: np.ndarray, r: int) -> np.ndarray:

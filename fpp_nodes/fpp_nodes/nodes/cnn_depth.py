@@ -59,7 +59,7 @@ class CnnDepth(Node):
             "min_confidence",
             -1.0,
             "a phase-aware model's order confidence below which "
-            "depth is NaN (negative: its card's, chosen on validation data)",
+            "depth is NaN (negative: its card's, chosen on validation data; 0 still refuses confidence 0)",
             True,
         )
         if threads < 1:

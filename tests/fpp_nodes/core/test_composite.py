@@ -276,6 +276,20 @@ def test_a_surface_striped_like_a_code_is_refused_and_a_plain_one_kept(rig, patt
     assert decoder.striped == 0
 
 
+def test_a_threshold_of_zero_does_not_undo_the_refusals(rig, patterns):
+    """The shipped model on a plane striped like the first code (contrast 0.6): the stripes rule gives it
+    confidence 0, so it is NaN at the card's threshold and at a threshold of 0 (a valid cnn_depth
+    parameter, which gave 52% of the plane a depth before); a plain plane keeps its depth at both."""
+    from fpp_nodes.core.model import DepthModel, default_model_path
+
+    model = DepthModel(default_model_path())
+    for threshold in (model.min_confidence, 0.0):
+        model.min_confidence = threshold
+        striped = model(striped_plane(rig, patterns, 0, 0.6)[0])
+        plain = model(striped_plane(rig, patterns, 0, 0.0)[0])
+        assert np.isnan(striped).mean() > 0.99 and np.isfinite(plain).mean() > 0.9, threshold
+
+
 def test_order_surfaces_join_neighbours_whose_absolute_phases_differ_by_less_than_pi():
     """A ramp of absolute phase (1 rad per pixel): one surface. Two orders added to a block: the block
     is a surface of its own, and the pixels either side of its border are on none."""
