@@ -245,13 +245,12 @@ def lowest_within_budget(files, model, decoder, fixed: tuple, rule: str, other: 
     (the validation scenes show neither stripes like a code nor surfaces outside the range, so what a
     refusal rule refuses there is its false alarms)."""
     thresholds, budget = REFUSAL_BUDGETS[rule]
-    grid = (*thresholds, np.inf)
-    sidebands, outside = (grid, (other,)) if rule == "max_sideband" else ((other,), grid)
-    counts = parallel_counts(files, model, decoder, (*fixed, sidebands, outside))
-    output = {
-        (o if rule == "max_outside" else t): sum(n[0] for n in by_family.values())
-        for (_, _, t, o, *_), by_family in counts.items()
-    }
+    which = ("max_sideband", "max_outside").index(rule)  # its place among rule_counts' last two grids
+    grids = [(other,), (other,)]
+    grids[which] = (*thresholds, np.inf)
+    counts = parallel_counts(files, model, decoder, (*fixed, *grids))
+    # rule_counts' keys: (floor, surface px, sideband, outside, ...)
+    output = {key[2 + which]: sum(n[0] for n in by_family.values()) for key, by_family in counts.items()}
     refused = {x: float(1 - output[x] / output[np.inf]) if output[np.inf] else 0.0 for x in thresholds}
     lowest = min((x for x, r in refused.items() if r <= budget), default=np.inf)
     return float(lowest), {str(x): round(r, 6) for x, r in refused.items()}
