@@ -17,7 +17,7 @@ from fpp_nodes.core.reconstruct import (
     trusted_depth,
 )
 from fpp_nodes.core.scenes import SURFACE_DEPTH_MM, make_scene, plane_scene
-from fpp_nodes.core.simulation import render
+from fpp_nodes.core.simulation import Rig, render
 from fpp_nodes.core.workflow import fringe_depth_mm, held_out_scenes, score, simulated_calibration
 
 
@@ -248,38 +248,32 @@ def test_the_shipped_single_shot_model_measures_a_rig_at_another_standoff_throug
         DepthModel(paper_model_path(), calibration=replace(paper, camera=replace(paper.camera, width=800, height=600)))
 
 
-def test_the_shipped_single_shot_model_reads_any_camera_at_the_fringe_period_it_was_trained_on(rig, patterns):
-    """A rig with an 800x600 camera whose fringes are 1.36 times wider than in training (the projector's
-    field 300 mm): the image is resampled so that they have the trained period (9.2 px), and two scenes
-    it never saw keep over 90% of the lit pixels (measured 97.2%) with at most 0.5% off by more than
-    1 mm (0.18%). Read as it comes, 8% of the pixels of the same rig at 640x480 came out (the
-    geometry table of scripts/single_shot_conditions.py)."""
+@pytest.mark.parametrize(
+    "camera, scale, network_size, least_cover",
+    [
+        (dict(width=800, height=600, projector_field_mm=300.0), 0.734, (587, 441), 0.9),
+        (dict(width=320, height=240, focal_px=Rig.focal_px / 2), 2.0, (641, 481), 0.8),
+    ],
+)
+def test_the_shipped_single_shot_model_reads_any_camera_at_the_fringe_period_it_was_trained_on(
+    rig, patterns, camera, scale, network_size, least_cover
+):
+    """The image is resampled so that its fringes have the trained period (9.2 px), and two scenes it
+    never saw keep least_cover of the lit pixels with at most 0.5% off by more than 1 mm. An 800x600
+    camera whose fringes are 1.36 times wider than in training (the projector's field 300 mm): over 90%
+    (measured 97.2%, 0.18% off; read as it comes, 8% of the pixels of the same rig at 640x480 came
+    out: the geometry table of scripts/single_shot_conditions.py). A 320x240 camera with the training
+    rig's field, its fringes 4.6 px, read at twice its size: over 80% (measured 87.9 and 91.0%, none off)."""
     from fpp_nodes.core.model import DepthModel, default_model_path
 
-    wide = replace(rig, width=800, height=600, projector_field_mm=300.0)
-    planes = [wide.standoff_mm + dz for dz in (-60.0, -30.0, 0.0, 30.0, 60.0)]
-    calibration, _ = simulated_calibration(wide, patterns, 1, planes, working_range_mm=None)
+    other = replace(rig, **camera)
+    planes = [other.standoff_mm + dz for dz in (-60.0, -30.0, 0.0, 30.0, 60.0)]
+    calibration, _ = simulated_calibration(other, patterns, 1, planes, working_range_mm=None)
     model = DepthModel(default_model_path(), calibration=calibration)
-    assert model.scale == pytest.approx(0.734, abs=0.01) and model.input_size == (587, 441)
+    assert model.scale == pytest.approx(scale, abs=0.01) and model.input_size == network_size
     for kind, seed in (("sculpture", 7001), ("objects", 7002)):
-        cover, off, _ = single_shot_errors(model, wide, patterns, kind, seed)
-        assert cover > 0.9 and off <= 0.005, (kind, cover, off)
-
-
-def test_the_shipped_single_shot_model_reads_a_camera_whose_fringes_are_finer_than_in_training(rig, patterns):
-    """A 320x240 camera with the training rig's field: its fringes are 4.6 px, half the trained period,
-    so the network reads the image at twice its size; two scenes it never saw keep over 80% of the lit
-    pixels (measured 87.9 and 91.0%) with at most 0.5% off by more than 1 mm (none)."""
-    from fpp_nodes.core.model import DepthModel, default_model_path
-
-    small = replace(rig, width=320, height=240, focal_px=rig.focal_px / 2)
-    planes = [small.standoff_mm + dz for dz in (-60.0, -30.0, 0.0, 30.0, 60.0)]
-    calibration, _ = simulated_calibration(small, patterns, 1, planes, working_range_mm=None)
-    model = DepthModel(default_model_path(), calibration=calibration)
-    assert model.scale == pytest.approx(2.0, abs=0.02) and model.input_size == (641, 481)
-    for kind, seed in (("sculpture", 7001), ("objects", 7002)):
-        cover, off, _ = single_shot_errors(model, small, patterns, kind, seed)
-        assert cover > 0.8 and off <= 0.005, (kind, cover, off)
+        cover, off, _ = single_shot_errors(model, other, patterns, kind, seed)
+        assert cover > least_cover and off <= 0.005, (kind, cover, off)
 
 
 def single_shot_errors(model, rig, patterns, kind: str, seed: int) -> tuple[float, float, float]:
