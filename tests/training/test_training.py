@@ -17,7 +17,7 @@ from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.model import DepthModel, ModelError, default_model_path, pixel_shuffle
 from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.core.simulation import Rig
-from training.compare_codes import DESIGNS, margin
+from training.compare_codes import DESIGNS, margin, third_margin
 from training.dataset import SETS, SPLITS, load_phase_targets, load_sample, seed_of, split_files, write_set
 from training.evaluate import family_table, largest_surface
 from training.export import (
@@ -463,5 +463,8 @@ def test_the_code_comparison_measures_margins_as_the_decoder_does():
     shipped = margin(DESIGNS["two codes, rows 12/24"], rig)
     assert shipped == pytest.approx(decoder.min_separation / 2, rel=0.1)
     assert margin(DESIGNS["one code (the first)"], rig) < shipped / 5
+    # a third code, rows 96 px apart: it alone keeps an order in range from those outside by the range's
+    # own margin (scripts/code_aliasing.py's geometry)
+    assert third_margin(DESIGNS["+ (180, 96), 0.31/0.23"], rig) >= shipped
     for stride in (2, 4):  # either stride's pixel shuffle gives the full resolution back
         assert CompositeNet(4, stride=stride)(torch.zeros(1, 1, 32, 32)).shape == (1, 6, 32, 32)
