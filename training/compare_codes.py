@@ -17,7 +17,9 @@ surface's brightness as B), then on the validation scenes: the share of pixels w
 the wrong order (their errors, together, beyond half the closest two orders' codes: the rig's exact
 geometry, every order pair of the working range) and each grating's RMS phase error. With three codes
 also the share a decoder judging the finer pair together and the coarsest alone would count (the
-coarsest only has to tell the finer pair's turns apart: third_margin). Pixels: lit,
+coarsest only has to tell the finer pair's turns apart: third_margin: "wrong"), the finer pair's
+share alone ("finer"), and the share a decoder asking the coarsest code only across a neighbourhood
+(its error's mean phasor over VETO_WINDOW) would call outside the range ("veto"). Pixels: lit,
 half the surface's brightness (gain x albedo / 2, the shipped carrier's modulation) at least 2% of full
 scale, the same pixels for every design; 16 px from the border. Held-out families are not used: this
 chooses a design.
@@ -31,6 +33,7 @@ from __future__ import annotations
 import argparse
 import time
 
+import cv2
 import numpy as np
 import torch
 
@@ -56,6 +59,7 @@ DESIGNS = {
 }
 CROP, BATCH = 160, 8  # as make composite-model trains
 BORDER, FLOOR = 16, 0.02
+VETO_WINDOW = 15  # px: the neighbourhood a decoder could ask the coarsest code across
 
 
 def phases(design, xp, yp, rig: Rig) -> list[np.ndarray]:
@@ -166,7 +170,7 @@ def main():
     print(f"{args.train} training scenes, {args.validation} validation scenes, {args.steps} steps of {BATCH} crops")
     print(
         f"{'design':24} {'margin rad':>10} {'own order wrong':>16} {'third alone':>12} {'wrong':>7}"
-        "  RMS phase error per grating (rad)"
+        f" {'finer':>7} {'veto':>7}  RMS phase error per grating (rad)"
     )
     for name in args.designs or DESIGNS:
         design = DESIGNS[name]
@@ -183,7 +187,7 @@ def main():
         third = len(design) == 4
         if third:
             fine_half, third_half = margin(design[:3], base), third_margin(design, base)
-        wrong_alone = 0
+        wrong_alone = fine_only = vetoed = 0
         with torch.no_grad():
             for i in range(n, len(images)):
                 out = net(torch.from_numpy(images[i] / np.float32(255))[None, None])[0].numpy()
@@ -193,12 +197,26 @@ def main():
                 pixels += keep.sum()
                 wrong += np.count_nonzero(keep & (np.sqrt(np.sum(errors[1:] ** 2, axis=0)) > half_gap))
                 if third:
-                    unsure = (np.sqrt(np.sum(errors[1:3] ** 2, axis=0)) > fine_half) | (errors[3] > third_half)
-                    wrong_alone += np.count_nonzero(keep & unsure)
+                    fine_unsure = np.sqrt(np.sum(errors[1:3] ** 2, axis=0)) > fine_half
+                    wrong_alone += np.count_nonzero(keep & (fine_unsure | (errors[3] > third_half)))
+                    fine_only += np.count_nonzero(keep & fine_unsure)
+                    # the coarsest code asked across a neighbourhood: its error's mean phasor over the
+                    # kept pixels of VETO_WINDOW x VETO_WINDOW around each; beyond third_half it would
+                    # call a surface in the range one outside it
+                    miss = wrap_phase(np.arctan2(out[6], out[7]) - grating_phases[i][3])
+                    sums = [
+                        cv2.boxFilter(
+                            np.where(keep, f(miss), 0).astype(np.float32), -1, (VETO_WINDOW,) * 2, normalize=False
+                        )
+                        for f in (np.cos, np.sin)
+                    ]
+                    vetoed += np.count_nonzero(keep & (np.abs(np.arctan2(sums[1], sums[0])) > third_half))
                 squared += np.sum(errors[:, keep] ** 2, axis=1)
         names = ["carrier", *(f"code {i + 1}" for i in range(len(design) - 1))]
         rms = "  ".join(f"{g}: {np.sqrt(s / pixels):.3f}" for g, s in zip(names, squared))
-        alone = f"{third_half:12.3f} {wrong_alone / pixels:7.2%}" if third else f"{'-':>12} {'-':>7}"
+        alone = f"{'-':>12} {'-':>7} {'-':>7} {'-':>7}"
+        if third:
+            alone = f"{third_half:12.3f} {wrong_alone / pixels:7.2%} {fine_only / pixels:7.2%} {vetoed / pixels:7.2%}"
         print(
             f"{name:24} {half_gap:10.3f} {wrong / pixels:16.2%} {alone}  {rms}   ({time.time() - start:.0f} s)",
             flush=True,
