@@ -191,7 +191,8 @@ def main():
         with torch.no_grad():
             for i in range(n, len(images)):
                 out = net(torch.from_numpy(images[i] / np.float32(255))[None, None])[0].numpy()
-                errors = np.abs(wrap_phase(np.arctan2(out[0::2], out[1::2]) - grating_phases[i]))
+                misses = wrap_phase(np.arctan2(out[0::2], out[1::2]) - grating_phases[i])
+                errors = np.abs(misses)
                 keep = lit[i] & (brightness[i] >= FLOOR)
                 keep[:BORDER] = keep[-BORDER:] = keep[:, :BORDER] = keep[:, -BORDER:] = False
                 pixels += keep.sum()
@@ -203,10 +204,9 @@ def main():
                     # the coarsest code asked across a neighbourhood: its error's mean phasor over the
                     # kept pixels of VETO_WINDOW x VETO_WINDOW around each; beyond third_half it would
                     # call a surface in the range one outside it
-                    miss = wrap_phase(np.arctan2(out[6], out[7]) - grating_phases[i][3])
                     sums = [
                         cv2.boxFilter(
-                            np.where(keep, f(miss), 0).astype(np.float32), -1, (VETO_WINDOW,) * 2, normalize=False
+                            np.where(keep, f(misses[3]), 0).astype(np.float32), -1, (VETO_WINDOW,) * 2, normalize=False
                         )
                         for f in (np.cos, np.sin)
                     ]
