@@ -32,9 +32,11 @@ from ..processes import start_process, stop_process
 class DemoRobot(Node):
     """Subscribes to everything a robot and its operator look at, noting when each message arrives."""
 
-    def __init__(self):
+    def __init__(self, max_clouds: int | None = None):
         super().__init__("demo_robot")
+        self.max_clouds = max_clouds
         self.frames, self.clouds, self.cnn_clouds, self.truth = {}, [], [], None
+        self.frames_per_sequence = Calibration.load(default_calibration_path()).patterns.count  # what sensor runs
         clock = time.time_ns
         self.create_subscription(
             Image, Topics.CAMERA_IMAGE, lambda m: self.frames.__setitem__(stamp_ns(m.header.stamp), clock()), Qos.FRAMES
@@ -47,10 +49,17 @@ class DemoRobot(Node):
             Image, Topics.TRUTH, lambda m: setattr(self, "truth", image_to_numpy(m).copy()), Qos.LATCHED
         )
 
+    def sequences_seen(self) -> bool:
+        """Whether every cloud's sequence, first frame to last, has reached this robot."""
+        stamps = np.array(sorted(self.frames))
+        n = self.frames_per_sequence
+        return all(last_frame(stamps, stamp_ns(c.header.stamp), n) is not None for c, _ in self.clouds)
+
     def _on_cloud(self, cloud: PointCloud2):
         """A cloud counts when this robot saw its sequence's first frame (it is stamped with it): one that
         began before the subscription matched cannot have its latency told."""
-        if stamp_ns(cloud.header.stamp) in self.frames:
+        full = self.max_clouds is not None and len(self.clouds) >= self.max_clouds
+        if stamp_ns(cloud.header.stamp) in self.frames and not full:
             self.clouds.append((cloud, time.time_ns()))
 
 
@@ -82,12 +91,15 @@ def main(argv=None):
         None,
     )
     rclpy.init()
-    robot = DemoRobot()
+    robot = DemoRobot(max_clouds=args.clouds)
     try:
         end = time.monotonic() + args.timeout
         while len(robot.clouds) < args.clouds and time.monotonic() < end and sensor.poll() is None:
             rclpy.spin_once(robot, timeout_sec=0.1)
-        for _ in range(10):  # the depth images of the last clouds
+        # Callbacks run one at a time: on a busy machine a cloud can be taken before its sequence's last
+        # frames or the single-shot cloud beside it. Wait for them (bounded), not for a fixed time.
+        settle = time.monotonic() + 30.0
+        while not (robot.sequences_seen() and robot.cnn_clouds) and time.monotonic() < settle:
             rclpy.spin_once(robot, timeout_sec=0.05)
         if sensor.poll() is not None:
             sys.exit(f"demo: the sensor exited with status {sensor.returncode}")
@@ -100,20 +112,16 @@ def main(argv=None):
         stop_process(sensor)
 
 
-def per_cloud(robot: DemoRobot, frames_per_sequence: int | None = None) -> list[dict]:
+def per_cloud(robot: DemoRobot) -> list[dict]:
     """Latency of each stage (ms) and accuracy of every cloud received, from the stamps (when each
-    pattern was shown) and the arrival times here; a sequence has the shipped calibration's frames
-    unless told otherwise."""
-    frames_per_sequence = frames_per_sequence or Calibration.load(default_calibration_path()).patterns.count
+    pattern was shown) and the arrival times here."""
     frame_stamps = np.array(sorted(robot.frames))
-    period = np.median(np.diff(frame_stamps)) if len(frame_stamps) > 1 else 0
     rows = []
     for cloud, arrived in robot.clouds:
         first = stamp_ns(cloud.header.stamp)
-        k = np.searchsorted(frame_stamps, first) + frames_per_sequence - 1
-        if k >= len(frame_stamps) or frame_stamps[k] - first > 1.5 * (frames_per_sequence - 1) * period:
+        last = last_frame(frame_stamps, first, robot.frames_per_sequence)
+        if last is None:
             continue  # not all of its frames were seen here
-        last = frame_stamps[k]
         rmse, cover = cloud_rmse_mm(cloud, robot.truth)
         rows.append(
             {
@@ -126,6 +134,16 @@ def per_cloud(robot: DemoRobot, frames_per_sequence: int | None = None) -> list[
             }
         )
     return rows
+
+
+def last_frame(frame_stamps: np.ndarray, first: int, n: int) -> int | None:
+    """Stamp of the last frame of the sequence that began at `first`, None unless all of its frames were
+    seen (the frames between are its own: no gap much longer than the median frame period)."""
+    k = np.searchsorted(frame_stamps, first) + n - 1
+    period = np.median(np.diff(frame_stamps)) if len(frame_stamps) > 1 else 0
+    if k >= len(frame_stamps) or frame_stamps[k] - first > 1.5 * (n - 1) * period:
+        return None
+    return int(frame_stamps[k])
 
 
 def cloud_rmse_mm(cloud, truth_m) -> tuple[float, float]:
