@@ -299,6 +299,19 @@ def test_main_job_writes_clouds_and_reports(tmp_path):
     assert len(single) >= 1, r.stdout  # the single-shot path beside it: RMSE and cover of each cloud
 
 
+def test_the_demo_times_a_cloud_only_once_its_whole_sequence_is_here():
+    """The demo's report times a cloud from its sequence's last frame: none until all 17 frames have
+    reached the robot (under load a cloud can be taken before them), nor across a long gap in them."""
+    from fpp_nodes.nodes.demo import last_frame
+
+    period = 33_333_333  # ns: 30 frames/s
+    stamps = 1_800_000_000_000_000_000 + period * np.arange(40)
+    assert last_frame(stamps, int(stamps[3]), 17) == stamps[19]
+    assert last_frame(stamps[:19], int(stamps[3]), 17) is None  # its last frame not taken yet
+    gap = np.concatenate([stamps[:8], stamps[30:]])  # the robot missed 22 frames
+    assert last_frame(gap, int(gap[0]), 17) is None
+
+
 def test_a_camera_with_a_lens_gives_clouds_along_its_true_rays(ros_graph, tmp_path):
     """The simulated camera with barrel distortion and the calibration that knows it: the cloud's XYZ is
     each pixel's true ray times its depth, within 0.06 mm RMS of the exact points (a pinhole's rays:
