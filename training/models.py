@@ -199,28 +199,13 @@ class PhaseOrderNet(nn.Module):
         return torch.cat([fringe, order], dim=1)
 
 
-class Residual(nn.Module):
-    """relu(x + conv(x)), conv zero at the start: a layer added to a trained network first changes nothing
-    (x comes out of a ReLU)."""
-
-    def __init__(self, conv: nn.Conv2d):
-        super().__init__()
-        self.conv = conv
-        nn.init.zeros_(conv.weight)
-        nn.init.zeros_(conv.bias)
-
-    def forward(self, x):
-        return torch.relu(x + self.conv(x))
-
-
 class CompositeNet(nn.Module):
     """The composite pattern's fringe analyser: from one image, the numerators and denominators of the
     carrier's and the code gratings' phases (B sin, B cos in full-scale units), each from the few
     fringe periods around the pixel (strided features, dilated convolutions for about 40-50 pixels,
-    a pixel shuffle back to full resolution), with a context branch at 1/8 resolution, twice as wide,
-    that lets the network see 164 pixels across (what the image's texture is, beyond one fringe period:
-    on validation it lowered the loss by a tenth and raised the coverage by 0.9-1.5 points; made wider and
-    deeper, a further 7% and 0.8 points, docs/single-shot.md). It learns to read
+    a pixel shuffle back to full resolution), with a context branch at 1/8 resolution that sees about
+    150 pixels around (what the image's texture is, beyond one fringe period: on validation it lowered
+    the loss by a tenth and raised the coverage by 0.9-1.5 points, docs/single-shot.md). It learns to read
     fringes, not scenes: the fringe order and the depth follow from physics
     (fpp_nodes.core.model.CompositeDecoder).
     stride: the first layer's, undone at the end by a pixel shuffle (export leaves that to DepthModel):
@@ -241,15 +226,14 @@ class CompositeNet(nn.Module):
         for dilation in self.DILATIONS[stride]:
             layers += [nn.Conv2d(p, p, 3, padding=dilation, dilation=dilation), nn.ReLU(inplace=True)]
         self.net = nn.Sequential(*layers, nn.Conv2d(p, 2 * gratings * stride * stride, 1))
-        c = 2 * p  # its own width: with the third layer, 7% less validation loss than p wide (docs/single-shot.md)
         self.context = nn.Sequential(
             nn.AvgPool2d(8 // stride),
-            nn.Conv2d(p, c, 3, padding=1),
+            nn.Conv2d(p, p, 3, padding=1),
             nn.ReLU(inplace=True),
-            nn.Conv2d(c, c, 3, padding=2, dilation=2),
+            nn.Conv2d(p, p, 3, padding=2, dilation=2),
             nn.ReLU(inplace=True),
-            Residual(nn.Conv2d(c, c, 3, padding=4, dilation=4)),  # the network sees 164 pixels across (100 without)
-            nn.Conv2d(c, p, 1),  # zero at the start: the branch adds nothing until it has learned something
+            nn.Identity(),  # the upsampling's first place: the 1x1 keeps its key (context.6) in older checkpoints
+            nn.Conv2d(p, p, 1),  # zero at the start: the branch adds nothing until it has learned something
             # after the 1x1: bilinear weights sum to one, so the function is the same at 1/16 of the cost
             nn.Upsample(scale_factor=8 // stride, mode="bilinear"),  # sizes are multiples of 32 (pad_to_stride)
         )

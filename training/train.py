@@ -356,37 +356,14 @@ def load_initial_weights(model: torch.nn.Module, path, network: str) -> None:
             t.name.removeprefix("net."): torch.from_numpy(numpy_helper.to_array(t).copy()) for t in graph.initializer
         }
     expected = model.state_dict()
-    wrong = [k for k in expected if not fits(weights.get(k), expected[k])]
+    wrong = [k for k in expected if k not in weights or weights[k].shape != expected[k].shape]
     if wrong:
         raise ValueError(
             f"{path} holds another network than this run's ({network}): nothing or another shape for "
             + ", ".join(wrong[:3])
             + (" ..." if len(wrong) > 3 else "")
         )
-    model.load_state_dict({k: grown(weights.get(k), expected[k]) for k in expected})
-
-
-def fits(old: torch.Tensor | None, new: torch.Tensor) -> bool:
-    """Whether grown can start new from old: no more channels, the same kernel, or nothing where new
-    starts at zero (a layer added so that it first changes nothing: models.Residual)."""
-    if old is None:
-        return not new.any()
-    same_kernel = old.dim() == new.dim() and old.shape[2:] == new.shape[2:]
-    return same_kernel and all(a <= b for a, b in zip(old.shape[:2], new.shape[:2]))
-
-
-def grown(old: torch.Tensor | None, new: torch.Tensor) -> torch.Tensor:
-    """A trained tensor in a layer given more channels (CompositeNet's context branch was): old in new's
-    first channels, new's own initial values in the new output channels, and zero where an old output
-    channel would read a new input channel, so the wider network computes what the trained one did and
-    the new channels still learn (Net2Net's function-preserving growth, Chen et al. 2016)."""
-    if old is None or old.shape == new.shape:
-        return new if old is None else old
-    out = new.clone()
-    if out.dim() > 1:
-        out[: old.shape[0], old.shape[1] :] = 0
-    out[tuple(slice(n) for n in old.shape)] = old
-    return out
+    model.load_state_dict({k: weights[k] for k in expected})
 
 
 def model_from_config(config: dict):
