@@ -26,14 +26,20 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 
-import cv2
 import numpy as np
 
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import DepthModel, default_model_path
-from fpp_nodes.core.patterns import composite_phases
-from fpp_nodes.core.scenes import make_scene, plane_scene
-from fpp_nodes.core.simulation import Rig, Scene, SceneRenderer, render
+from fpp_nodes.core.scenes import (
+    black_print,
+    fine_stripes,
+    grating_texture,
+    make_scene,
+    pink_noise,
+    plane_scene,
+    textured,
+)
+from fpp_nodes.core.simulation import Rig, Scene, render
 from fpp_nodes.core.workflow import simulated_calibration
 
 CONDITIONS = {
@@ -51,41 +57,14 @@ CONDITIONS = {
 PHOTOMETRY_FAMILIES = ("sculpture", "freeform", "blocks", "bust")
 
 
-def grating(contrast: float, which: int):
-    """Texture: stripes where the composite's grating which (0 the carrier, 1.. its codes) falls on the surface."""
-
-    def texture(rng, patterns, xp, yp):
-        phase = composite_phases(patterns, xp, yp)[which] + rng.uniform(0, 2 * np.pi)
-        return 1 - contrast * 0.5 * (1 + np.cos(phase))
-
-    return texture
-
-
-def black_print(rng, patterns, xp, yp):  # blobs and strokes of ink 2 px and up, on white
-    field = cv2.GaussianBlur(rng.standard_normal(xp.shape), (0, 0), 2.0)
-    return 1 - 0.97 * (field > 0.5 * field.std())
-
-
-def pink_noise(rng, patterns, xp, yp):  # every scale at once, as natural surfaces are
-    ky, kx = np.meshgrid(np.fft.fftfreq(xp.shape[0]), np.fft.fftfreq(xp.shape[1]), indexing="ij")
-    field = np.fft.ifft2(np.fft.fft2(rng.standard_normal(xp.shape)) / np.maximum(np.hypot(kx, ky), 1e-3)).real
-    return 1 - 0.9 * (field - field.min()) / (field.max() - field.min())
-
-
-def fine_stripes(rng, patterns, xp, yp):  # 4 px apart (1 mm at the stand-off), any direction
-    y, x = np.indices(xp.shape)
-    angle = rng.uniform(0, np.pi)
-    return 1 - 0.8 * (((x * np.cos(angle) + y * np.sin(angle)) / 4.0 + rng.uniform()) % 1.0 < 0.5)
-
-
 TEXTURES = {
     "none (albedo 0.8)": lambda rng, patterns, xp, yp: np.ones(xp.shape),
     "black print on white (contrast 0.97)": black_print,
     "1/f noise, contrast 0.9": pink_noise,
-    "stripes 4 px apart, contrast 0.8": fine_stripes,
-    "laid like the carrier, contrast 0.6": grating(0.6, 0),
+    "stripes 4 px apart, contrast 0.8": fine_stripes(4.0),
+    "laid like the carrier, contrast 0.6": grating_texture(0.6, 0),
     **{
-        f"laid like the {name} code, contrast {contrast}": grating(contrast, which)
+        f"laid like the {name} code, contrast {contrast}": grating_texture(contrast, which)
         for which, name in ((1, "fine"), (2, "coarse"))
         for contrast in (0.4, 0.6)
     },
@@ -131,15 +110,6 @@ def outside_scenes(rig, kind: str, seed: int) -> Scene:
 
 
 OUTSIDE = ("near planes", "far planes", "objects before a far wall", "a box reaching out of the range")
-
-
-def textured(rig, patterns, scene, texture, seed: int):
-    """The scene with every surface of albedo 0.8 times texture(rng, patterns, xp, yp): at each pixel, the
-    projector column and row its surface point lies on."""
-    renderer = SceneRenderer(rig, scene)
-    xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
-    albedo = 0.8 * texture(np.random.default_rng([seed, 2]), patterns, xp, yp)
-    return Scene(scene.name, scene.depth_mm, np.where(scene.albedo > 0, albedo, 0.0))
 
 
 def measure(model, rig, patterns, scenes, texture=None, make=make_scene) -> tuple[ErrorTotals, ErrorTotals]:

@@ -8,6 +8,7 @@ be measured. Shadowed and untrusted pixels are invalid in the label and are left
     python -m training.dataset --out data/fpp --set composite   # scene families, the composite (see SETS)
     python -m training.dataset --out data/fpp --set composite_retest   # 120 fresh test scenes of the same families
     python -m training.dataset --out data/fpp --set composite_retest2  # and 120 more
+    python -m training.dataset --out data/fpp --set composite_hard     # 120 hard validation scenes
     python -m training.dataset --out data/my_rig --from-bag bags/run1 [--split train]
 
 On disk (a folder per set and split, one file per sample):
@@ -18,7 +19,8 @@ On disk (a folder per set and split, one file per sample):
                                        truth  float32 (H, W) exact depth in mm, NaN = shadow
      families/surface/composite: phase  float32 (H, W)     multi-shot absolute phase, NaN invalid
                                  fringe float16 (2, H, W)  its numerator and denominator
-                                 family str                the scene family (a bag's sample: the bag's name)
+                                 family str                the scene family (a bag's sample: the bag's name;
+                                                           composite_hard: its condition's, HARD_CONDITIONS)
                  composite (and bags): code   float16 (2 x codes, H, W)  the code gratings (phase_targets)
 """
 
@@ -37,8 +39,8 @@ from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.phase import phase_sums
 from fpp_nodes.core.reconstruct import PspReconstructor, full_scale
-from fpp_nodes.core.scenes import make_scene
-from fpp_nodes.core.simulation import Rig, random_rig, render
+from fpp_nodes.core.scenes import black_print, fine_stripes, grating_texture, make_scene, pink_noise, textured
+from fpp_nodes.core.simulation import Rig, beyond_training_rig, random_rig, render
 
 SPLITS = ("train", "val", "test")
 # set name -> (scene kind, paper's counts, first seed, single-shot frame); seeds never overlap between
@@ -52,12 +54,16 @@ SETS = {
     "composite_paper": ("families", (360, 40, 120), 500_000, "paper"),
     "composite_retest": ("families", (0, 0, 120), 600_000, "composite"),
     "composite_retest2": ("families", (0, 0, 120), 700_000, "composite"),
+    "composite_hard": ("families", (0, 120, 0), 800_000, "composite"),
 }
 # composite_paper: the composite set's scenes (the same seeds), the paper's single-shot frame: the two
 # patterns compared on the same scenes with the same training budget (README, Table 1).
 # composite_retest, composite_retest2: a second and a third draw of the composite set's test scenes (new
 # seeds, every family): a candidate network is judged there once the composite test split has been read
 # for design choices (the second was, for the quarter-resolution network's; the third for none).
+# composite_hard: validation scenes of the training families under conditions one image reads worst,
+# beyond what training draws (HARD_CONDITIONS): export chooses a network's rules on them beside the
+# composite set's (--data twice), so its silent-error budget is spent where one image is hard to read.
 # The families set spans the working volume: backgrounds anywhere in 1100-1300 mm. The surface set puts
 # the background (the work surface) at the calibration's reference depth at the image centre, any tilt:
 # one 100-fringe image cannot tell the fringe order of a surface at an unknown depth (a phase-aware
@@ -120,17 +126,48 @@ def family_of(split: str, i: int) -> str:
     return families[i % len(families)]
 
 
-def make_sample(kind: str, seed: int, families: bool = False, surface_mm: float | None = None) -> dict:
+HARD_CONDITIONS = ("photometry beyond training", "texture beyond training")  # the composite_hard set's families
+
+
+def hard_texture(rng: np.random.Generator) -> tuple[str, object]:
+    """A texture the scene generator never draws, and its name. None is striped like a code: refusing
+    those is the stripes rule's job, whose false alarms export measures on plain scenes."""
+    which = int(rng.integers(4))
+    if which == 0:
+        return "black print", black_print
+    if which == 1:
+        return "1/f noise", pink_noise
+    if which == 2:
+        period = rng.uniform(3.0, 6.0)
+        return f"stripes {period:.1f} px apart", fine_stripes(period)
+    contrast = rng.uniform(0.3, 0.7)
+    return f"laid like the carrier, contrast {contrast:.2f}", grating_texture(contrast, 0)
+
+
+def make_sample(
+    kind: str, seed: int, families: bool = False, surface_mm: float | None = None, hard: bool = False
+) -> dict:
     """Render one scene, reconstruct it with the multi-shot path, keep the single-shot frame.
 
     For the families set (families=True) the scene is rendered with random photometry (random_rig),
     and the sample also keeps its family and the multi-shot phase: `phase`, the absolute phase of the
     highest frequency (float32, NaN where untrusted), and `fringe`, its numerator and denominator
-    (B sin phi, B cos phi over full scale, float16), the phase-aware network's targets."""
+    (B sin phi, B cos phi over full scale, float16), the phase-aware network's targets. hard: the scene
+    under photometry beyond the training ranges or with a texture the generator never draws, drawn
+    half and half; its family is which (HARD_CONDITIONS), `condition` says what it is."""
     rig, patterns, psp = _worker["rig"], _worker["patterns"], _worker["psp"]
     if families:
         rig = random_rig(np.random.default_rng([seed, 1]), rig)
-    capture = render(rig, make_scene(rig, kind, seed, surface_mm), patterns, np.random.default_rng(seed))
+    scene, family, condition = make_scene(rig, kind, seed, surface_mm), kind, None
+    if hard:
+        rng = np.random.default_rng([seed, 4])
+        if rng.random() < 0.5:
+            rig, condition = beyond_training_rig(rng, _worker["rig"])
+            family = HARD_CONDITIONS[0]
+        else:
+            condition, texture = hard_texture(rng)
+            scene, family = textured(rig, patterns, scene, texture, seed), HARD_CONDITIONS[1]
+    capture = render(rig, scene, patterns, np.random.default_rng(seed))
     rec = psp(capture.images)
     truth = np.where(capture.valid, capture.depth_mm, np.nan)
     sample = {
@@ -139,7 +176,9 @@ def make_sample(kind: str, seed: int, families: bool = False, surface_mm: float 
         "truth": truth.astype(np.float32),
     }
     if families:
-        sample.update(phase_targets(capture.images, rec, psp.calibration), family=kind)
+        sample.update(phase_targets(capture.images, rec, psp.calibration), family=family)
+    if condition is not None:
+        sample["condition"] = f"{kind}: {condition}"
     return sample
 
 
@@ -170,10 +209,10 @@ def phase_targets(images: np.ndarray, rec, calibration: Calibration) -> dict:
 
 
 def _write(job):
-    kind, seed, path, families, surface_mm = job
+    kind, seed, path, families, surface_mm, hard = job
     partial = path.with_suffix(".part")
     with open(partial, "wb") as f:
-        np.savez_compressed(f, **make_sample(kind, seed, families, surface_mm))
+        np.savez_compressed(f, **make_sample(kind, seed, families, surface_mm, hard))
     partial.replace(path)  # a stopped run leaves no half-written sample behind
     return path
 
@@ -184,6 +223,7 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
     counts = tuple(counts or paper_counts)
     calibration = set_calibration(calibration_path or default_calibration_path(), single_shot)
     surface_mm = calibration.reference_depth_mm if set_name == "surface" else None
+    hard = set_name == "composite_hard"
     folder = Path(out) / set_name
     jobs = []
     for split, n in zip(SPLITS, counts):
@@ -192,9 +232,8 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
             path = folder / split / f"{seed_of(set_name, split, i)}.npz"
             if not path.exists():
                 families = kind == "families"
-                jobs.append(
-                    (family_of(split, i) if families else kind, seed_of(set_name, split, i), path, families, surface_mm)
-                )
+                kind_i = family_of(split, i) if families else kind
+                jobs.append((kind_i, seed_of(set_name, split, i), path, families, surface_mm, hard))
     rig, patterns = Rig(), calibration.patterns
     (folder / "dataset.yaml").write_text(
         yaml.safe_dump(
@@ -209,6 +248,7 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
                     else {}
                 ),
                 **({"background_centre_mm": surface_mm} if surface_mm is not None else {}),
+                **({"conditions": list(HARD_CONDITIONS)} if hard else {}),
                 "counts": dict(zip(SPLITS, counts)),
                 "first_seeds": {s: seed_of(set_name, s, 0) for s in SPLITS},
                 "input": patterns.names()[patterns.single_shot_index],

@@ -27,7 +27,7 @@ from fpp_nodes.core.model import network_input, trusted_single_shot
 from fpp_nodes.core.reconstruct import CompositeDecoder, order_surfaces, reconstruct_ftp
 from fpp_nodes.core.workflow import fringe_depth_mm, wrong_order_mm
 
-from .dataset import load_sample, reference_depth, sample_family, split_files
+from .dataset import SPLITS, load_sample, reference_depth, sample_family, split_files
 from .models import pad_to_stride
 from .train import load_checkpoint, model_from_checkpoint
 
@@ -142,9 +142,10 @@ def main(argv=None):
         action="store_true",
         help="the per-family table of the test split instead (checkpoints or .onnx models)",
     )
+    parser.add_argument("--split", choices=SPLITS, default="test", help="--families' split (default: test)")
     args = parser.parse_args(argv)
     if args.families:
-        family_table(args.data, args.checkpoints, limit=args.limit)
+        family_table(args.data, args.checkpoints, args.split, args.limit)
         return
     calibration = Calibration.from_dict(yaml.safe_load((Path(args.data) / "dataset.yaml").read_text())["calibration"])
     models = []

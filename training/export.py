@@ -3,6 +3,7 @@
     python -m training.export runs/unet/best.pt --out fpp_nodes/fpp_nodes/data/models/unet.onnx
     python -m training.export runs/gpu/best.pt --out model.onnx --data data/fpp/composite
     python -m training.export model.onnx --data data/fpp/composite   # its rules chosen again, card rewritten
+    python -m training.export model.onnx --data data/fpp/composite --data data/fpp/composite_hard  # and on hard scenes
 
 The ONNX model has one input, `image` (float32, N x 1 x H x W, the camera image / full scale, at 1/
 downsample of the camera's resolution, H and W multiples of 32) and one output, `depth_mm`
@@ -173,7 +174,7 @@ def validation_counts(files, model, decoder, grids: tuple) -> dict:
     return rule_counts(samples(), decoder, *grids)
 
 
-def choose_decoding(model, data: str, calibration: Calibration, limit: int = 200) -> dict:
+def choose_decoding(model, data: list, calibration: Calibration, limit: int = 200) -> dict:
     """A phase-aware network's rules, decoded with calibration (CompositeDecoder for a CompositeNet,
     else PhaseOrderDecoder): the fringe mask's floor, the smallest surface, the roughness limit and the refusal margin
     (composite decoders) and the order-confidence threshold that give the most coverage while the
@@ -184,8 +185,13 @@ def choose_decoding(model, data: str, calibration: Calibration, limit: int = 200
     lowest max_sideband of SIDEBAND_GRID that refuses at most SIDEBAND_REFUSAL_BUDGET of that output
     (none is striped like a code, so what it refuses there is its false alarms); then, with that too,
     the lowest max_outside of OUTSIDE_GRID that refuses none of it (OUTSIDE_REFUSAL_BUDGET: every
-    surface of the set lies in the working range)."""
-    files = split_files(data, "val")[:limit]
+    surface of the set lies in the working range).
+
+    data: the sets whose validation splits (at most limit samples of each) choose the rules; the first
+    set's scenes alone measure the stripes and range rules' false alarms, as the others (hard scenes:
+    composite_hard) may hold textures those rules are right to refuse."""
+    plain = split_files(data[0], "val")[:limit]
+    files = [f for d in data for f in split_files(d, "val")[:limit]]
     composite = isinstance(model, CompositeNet)
     decoder = (CompositeDecoder if composite else PhaseOrderDecoder)(calibration)
     surfaces, roughness, margins = (SURFACE_GRID, ROUGHNESS_GRID, MARGIN_GRID) if composite else ((0,), (np.inf,), (0,))
@@ -211,8 +217,8 @@ def choose_decoding(model, data: str, calibration: Calibration, limit: int = 200
     if composite:
         chosen |= {"min_surface_px": surface, "max_roughness_mm": rough, "margin_px": margin}
         fixed = ((floor,), (confidence,), (step,), (surface,), (rough,), (margin,), wrong_order)
-        max_sideband, refused = lowest_within_budget(files, model, decoder, fixed, "max_sideband", np.inf)
-        max_outside, outside_refused = lowest_within_budget(files, model, decoder, fixed, "max_outside", max_sideband)
+        max_sideband, refused = lowest_within_budget(plain, model, decoder, fixed, "max_sideband", np.inf)
+        max_outside, outside_refused = lowest_within_budget(plain, model, decoder, fixed, "max_outside", max_sideband)
         chosen |= {
             "max_sideband": max_sideband,
             "sideband_refusal_budget": SIDEBAND_REFUSAL_BUDGET,
@@ -222,7 +228,7 @@ def choose_decoding(model, data: str, calibration: Calibration, limit: int = 200
             "outside": outside_refused,
         }
     return chosen | {
-        "chosen_on": f"{data} val, {len(files)} samples",
+        "chosen_on": " and ".join(f"{d} val" for d in data) + f", {len(files)} samples",
         "silent_error_budget": SILENT_ERROR_BUDGET,
         "silent_error_limit_per_family": SILENT_ERROR_LIMIT,
         "wrong_order_budget": WRONG_ORDER_BUDGET,
@@ -284,13 +290,14 @@ class Strided(torch.nn.Module):
 
 
 def export(
-    checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | None = None, data: str | None = None
+    checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | None = None, data: list | None = None
 ) -> dict:
-    """data: a set of the same rig, whose calibration goes on the card and whose validation split chooses
-    a phase-aware model's rules (default: the set it trained on)."""
+    """data: sets of the same rig, the first's calibration on the card, whose validation splits choose a
+    phase-aware model's rules (choose_decoding; default: the set it trained on)."""
     ckpt = load_checkpoint(checkpoint)
     model, cfg = model_from_checkpoint(ckpt)
-    data = Path(data or cfg.data)
+    sets = data or [cfg.data]
+    data = Path(sets[0])
     phase_aware = cfg.arch in OUTPUTS
     output = OUTPUTS.get(cfg.arch, "depth_mm")
     out = Path(out)
@@ -373,15 +380,23 @@ def export(
     }
     if phase_aware:
         card["calibration"] = calibration
-        card["decoding"] = choose_decoding(model, str(data), Calibration.from_dict(calibration))
+        card["decoding"] = choose_decoding(model, sets, sets_calibration(sets))
     out.with_suffix(".yaml").write_text(yaml.safe_dump(card, sort_keys=False))
     return card
 
 
-def choose_again(model_path: str, data: str) -> dict:
-    """An exported phase-aware model's rules chosen again (choose_decoding) on data's validation split,
-    decoded with data's calibration (a set recorded with the rig it is to run on, or a decoder changed
-    since its export), into its card; the network and its sha256 stay as they are."""
+def sets_calibration(sets: list) -> Calibration:
+    """The calibration the sets were made with: one rig's, or an error."""
+    first, *others = (yaml.safe_load((Path(d) / "dataset.yaml").read_text())["calibration"] for d in sets)
+    if any(other != first for other in others):
+        raise ValueError(f"{', '.join(map(str, sets))} are not all of one rig (their calibrations differ)")
+    return Calibration.from_dict(first)
+
+
+def choose_again(model_path: str, data: list) -> dict:
+    """An exported phase-aware model's rules chosen again (choose_decoding) on the data sets' validation
+    splits, decoded with their calibration (sets recorded with the rig it is to run on, or a decoder
+    changed since its export), into its card; the network and its sha256 stay as they are."""
     path = Path(model_path)
     card_path = path.with_suffix(".yaml")
     card = yaml.safe_load(card_path.read_text())
@@ -391,8 +406,7 @@ def choose_again(model_path: str, data: str) -> dict:
         raise ValueError(f"{path} does not match its card's sha256")
     model, cfg = model_from_config(card["training"]["config"])
     load_initial_weights(model, path, f"{cfg.arch}, width {cfg.width}")
-    calibration = Calibration.from_dict(yaml.safe_load((Path(data) / "dataset.yaml").read_text())["calibration"])
-    card["decoding"] = choose_decoding(model.eval(), data, calibration)
+    card["decoding"] = choose_decoding(model.eval(), data, sets_calibration(data))
     card_path.write_text(yaml.safe_dump(card, sort_keys=False))
     return card
 
@@ -405,7 +419,12 @@ def main(argv=None):
         "checkpoint", help="a checkpoint to export, or an exported model (.onnx) whose rules to choose again"
     )
     parser.add_argument("--out", help="the model file to write (a checkpoint's export)")
-    parser.add_argument("--data", help="the set whose validation split chooses the rules (default: the training set)")
+    parser.add_argument(
+        "--data",
+        action="append",
+        help="a set whose validation split chooses the rules (default: the training set); again for more "
+        "(e.g. composite_hard's scenes beyond training): the first's calibration goes on the card",
+    )
     args = parser.parse_args(argv)
     if Path(args.checkpoint).suffix == ".onnx":
         if not args.data:

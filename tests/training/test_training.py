@@ -18,7 +18,17 @@ from fpp_nodes.core.model import DepthModel, ModelError, default_model_path, pix
 from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.core.simulation import Rig
 from training.compare_codes import DESIGNS, margin, third_margin
-from training.dataset import SETS, SPLITS, load_phase_targets, load_sample, seed_of, split_files, write_set
+from training.dataset import (
+    HARD_CONDITIONS,
+    SETS,
+    SPLITS,
+    load_phase_targets,
+    load_sample,
+    sample_family,
+    seed_of,
+    split_files,
+    write_set,
+)
 from training.evaluate import family_table, largest_surface
 from training.export import (
     CONFIDENCE_GRID,
@@ -185,7 +195,7 @@ def test_export_parity_card_and_onnxruntime(trained, tmp_path):
     with pytest.raises(ModelError, match="mono8 or mono16"):
         model(np.zeros((480, 640), np.float32))
     with pytest.raises(ValueError, match="no phase-aware model"):  # a depth regressor has no rules to choose
-        choose_again(str(tmp_path / "m.onnx"), "data")
+        choose_again(str(tmp_path / "m.onnx"), ["data"])
     (tmp_path / "m.onnx").write_bytes((tmp_path / "m.onnx").read_bytes()[:1000])
     with pytest.raises(ModelError, match="does not match its card"):
         DepthModel(tmp_path / "m.onnx")
@@ -440,18 +450,29 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     assert np.all(np.isnan(depth[~(confidence >= model.min_confidence)]))
     # trained elsewhere (a GPU machine's set is gone): the rules and calibration come from a set here
     moved = data.rename(tmp_path / "here")
-    card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m2.onnx"), data=str(moved))
+    card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m2.onnx"), data=[str(moved)])
     assert card["decoding"]["chosen_on"].startswith(str(moved)) and card["training"]["data"] == str(data)
     assert card["calibration"]["camera"]["width"] == 640
     # the exported model's rules chosen again from its ONNX file (a card without them): the same rules and file
     stale = yaml.safe_load((tmp_path / "m2.yaml").read_text()) | {"decoding": {}}
     (tmp_path / "m2.yaml").write_text(yaml.safe_dump(stale, sort_keys=False))
-    again = choose_again(str(tmp_path / "m2.onnx"), str(moved))
+    again = choose_again(str(tmp_path / "m2.onnx"), [str(moved)])
     assert again["decoding"] == card["decoding"] and again["sha256"] == card["sha256"] == sha256(tmp_path / "m2.onnx")
     assert DepthModel(tmp_path / "m2.onnx").min_confidence == card["decoding"]["min_confidence"]
+    # and on hard validation scenes beside them (one of each condition), of the same rig only
+    hard = write_set(tmp_path / "data", "composite_hard", counts=(0, 2, 0), workers=1)
+    conditions = [sample_family(f) for f in split_files(hard, "val")]
+    assert sorted(conditions) == sorted(HARD_CONDITIONS)
+    both = choose_again(str(tmp_path / "m2.onnx"), [str(moved), str(hard)])["decoding"]
+    assert both["chosen_on"] == f"{moved} val and {hard} val, 3 samples"
+    other_rig = yaml.safe_load((hard / "dataset.yaml").read_text())
+    other_rig["calibration"]["camera"]["fx"] += 1.0
+    (hard / "dataset.yaml").write_text(yaml.safe_dump(other_rig))
+    with pytest.raises(ValueError, match="not all of one rig"):
+        choose_again(str(tmp_path / "m2.onnx"), [str(moved), str(hard)])
     (tmp_path / "m2.yaml").write_text((tmp_path / "m2.yaml").read_text().replace(card["sha256"], "0" * 64))
     with pytest.raises(ValueError, match="does not match its card"):
-        choose_again(str(tmp_path / "m2.onnx"), str(moved))
+        choose_again(str(tmp_path / "m2.onnx"), [str(moved)])
 
 
 def test_the_code_comparison_measures_margins_as_the_decoder_does():

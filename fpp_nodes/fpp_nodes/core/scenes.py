@@ -17,7 +17,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .simulation import Rig, Scene, SimulationError
+from .patterns import PatternSet, composite_phases
+from .simulation import Rig, Scene, SceneRenderer, SimulationError
 
 
 def _grid_mm(rig: Rig):
@@ -395,6 +396,52 @@ def make_scene(rig: Rig, kind: str, seed: int = 0, depth_mm: float | None = None
     if kind in SCENE_FAMILIES:  # depth_mm given: the background's depth at the image centre
         return SCENE_FAMILIES[kind](rig, rng, *([] if depth_mm is None else [(depth_mm, depth_mm)]))
     return scene_from_file(rig, kind)
+
+
+# Textures the scene generator never draws (export's hard validation scenes, scripts/single_shot_conditions.py):
+# texture(rng, patterns, xp, yp) -> the albedo's factor at every pixel, xp and yp the projector column and row
+# its surface point lies on.
+
+
+def grating_texture(contrast: float, which: int):
+    """Stripes where the composite's grating which (0 the carrier, 1.. its codes) falls on the surface: the
+    albedo the projected grating would print there, which one image cannot tell from the grating itself."""
+
+    def texture(rng, patterns, xp, yp):
+        phase = composite_phases(patterns, xp, yp)[which] + rng.uniform(0, 2 * np.pi)
+        return 1 - contrast * 0.5 * (1 + np.cos(phase))
+
+    return texture
+
+
+def black_print(rng, patterns, xp, yp):  # blobs and strokes of ink 2 px and up, on white
+    field = cv2.GaussianBlur(rng.standard_normal(xp.shape), (0, 0), 2.0)
+    return 1 - 0.97 * (field > 0.5 * field.std())
+
+
+def pink_noise(rng, patterns, xp, yp):  # every scale at once, as natural surfaces are
+    ky, kx = np.meshgrid(np.fft.fftfreq(xp.shape[0]), np.fft.fftfreq(xp.shape[1]), indexing="ij")
+    field = np.fft.ifft2(np.fft.fft2(rng.standard_normal(xp.shape)) / np.maximum(np.hypot(kx, ky), 1e-3)).real
+    return 1 - 0.9 * (field - field.min()) / (field.max() - field.min())
+
+
+def fine_stripes(period_px: float):
+    """Stripes period_px camera pixels apart (4 px: 1 mm at the stand-off), contrast 0.8, any direction."""
+
+    def texture(rng, patterns, xp, yp):
+        y, x = np.indices(xp.shape)
+        angle = rng.uniform(0, np.pi)
+        return 1 - 0.8 * (((x * np.cos(angle) + y * np.sin(angle)) / period_px + rng.uniform()) % 1.0 < 0.5)
+
+    return texture
+
+
+def textured(rig: Rig, patterns: PatternSet, scene: Scene, texture, seed: int) -> Scene:
+    """The scene with every surface of albedo 0.8 times texture(rng, patterns, xp, yp)."""
+    renderer = SceneRenderer(rig, scene)
+    xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
+    albedo = 0.8 * texture(np.random.default_rng([seed, 2]), patterns, xp, yp)
+    return Scene(scene.name, scene.depth_mm, np.where(scene.albedo > 0, albedo, 0.0))
 
 
 def board_scene(rig: Rig, board, rotation: np.ndarray, translation_mm: np.ndarray) -> Scene:

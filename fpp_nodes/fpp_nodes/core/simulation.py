@@ -179,6 +179,28 @@ def random_rig(rng: np.random.Generator, base: Rig) -> Rig:
     )
 
 
+# Photometry beyond those ranges (export's hard validation scenes): each setting's ranges, one drawn
+BEYOND_TRAINING = {
+    "ambient": ((0.15, 0.35),),
+    "gain": ((0.15, 0.4), (1.0, 1.4)),
+    "noise_sigma": ((3.0, 6.0),),
+    "blur_sigma_px": ((1.2, 3.5),),
+    "projector_gamma": ((1.7, 2.0), (2.4, 2.7)),  # the patterns stay pre-compensated for the base rig's (2.2)
+}
+
+
+def beyond_training_rig(rng: np.random.Generator, base: Rig) -> tuple[Rig, str]:
+    """random_rig with one or two of its settings drawn beyond the training ranges (BEYOND_TRAINING), and
+    what they are, e.g. 'gain 0.23, blur_sigma_px 2.71'."""
+    rig = random_rig(rng, base)
+    names = rng.choice(sorted(BEYOND_TRAINING), size=int(rng.integers(1, 3)), replace=False)
+    changes = {}
+    for name in names:
+        ranges = BEYOND_TRAINING[name]
+        changes[str(name)] = float(rng.uniform(*ranges[int(rng.integers(len(ranges)))]))
+    return replace(rig, **changes), ", ".join(f"{name} {value:.2f}" for name, value in changes.items())
+
+
 # ---------------------------------------------------------------- rendering
 
 

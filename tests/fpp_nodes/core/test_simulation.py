@@ -7,7 +7,16 @@ import pytest
 from fpp_nodes.core.calibration import back_project
 from fpp_nodes.core.phase import wrapped_phase
 from fpp_nodes.core.scenes import make_scene, plane_scene, scene_from_file
-from fpp_nodes.core.simulation import Rig, SimulationError, render
+from fpp_nodes.core.simulation import (
+    AMBIENT,
+    BLUR_SIGMA_PX,
+    GAIN,
+    NOISE_SIGMA,
+    Rig,
+    SimulationError,
+    beyond_training_rig,
+    render,
+)
 
 
 def analytic_plane_phase(rig: Rig, patterns, depth_mm):
@@ -133,3 +142,14 @@ def test_horizontal_fringes_tell_the_projector_row(ideal_rig):
     row = phase * ideal_rig.projector_height / (2 * np.pi * patterns.frequencies[-1])
     # 0.02 projector px: the projector's pixels, linear between centres, bend an 8-px period's sinusoid
     assert valid.mean() > 0.99 and np.abs(row - capture.projector_coord)[valid].max() < 0.02
+
+
+def test_hard_validation_photometry_lies_beyond_the_training_ranges():
+    """Each beyond_training_rig draw has one or two settings outside what training draws (the projector's
+    gamma at least 0.2 off the 2.2 its patterns are made for), and says which."""
+    trained = {"ambient": AMBIENT, "gain": GAIN, "noise_sigma": NOISE_SIGMA, "blur_sigma_px": BLUR_SIGMA_PX}
+    for seed in range(40):
+        rig, condition = beyond_training_rig(np.random.default_rng(seed), Rig())
+        outside = [name for name, (low, high) in trained.items() if not low <= getattr(rig, name) <= high]
+        outside += ["projector_gamma"] * (abs(rig.projector_gamma - 2.2) >= 0.2)
+        assert 1 <= len(outside) <= 2 and sorted(outside) == sorted(part.split()[0] for part in condition.split(", "))
