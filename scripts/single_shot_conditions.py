@@ -18,7 +18,11 @@ default rig), where the composite's codes begin to repeat; beside the card's rul
 the rule against them (the decoder's max_outside). Prints the coverage of the lit pixels and the share
 of the output off the exact depth by more than 1 and 4 mm.
 
-    python scripts/single_shot_conditions.py
+    python scripts/single_shot_conditions.py [--model M] [--seed S]
+    python scripts/single_shot_conditions.py --model CANDIDATE.onnx --against SHIPPED.onnx --seed S
+
+With --against, both networks read the same renders, side by side, and the script ends with the rule a
+candidate network passes before it ships (RULE_BAR): the cells where it breaks it, or "passes".
 """
 
 from __future__ import annotations
@@ -57,17 +61,18 @@ CONDITIONS = {
 PHOTOMETRY_FAMILIES = ("sculpture", "freeform", "blocks", "bust")
 
 
+CODE_STRIPED = {
+    f"laid like the {name} code, contrast {contrast}": grating_texture(contrast, which)
+    for which, name in ((1, "fine"), (2, "coarse"))
+    for contrast in (0.4, 0.6)
+}
 TEXTURES = {
     "none (albedo 0.8)": lambda rng, patterns, xp, yp: np.ones(xp.shape),
     "black print on white (contrast 0.97)": black_print,
     "1/f noise, contrast 0.9": pink_noise,
     "stripes 4 px apart, contrast 0.8": fine_stripes(4.0),
     "laid like the carrier, contrast 0.6": grating_texture(0.6, 0),
-    **{
-        f"laid like the {name} code, contrast {contrast}": grating_texture(contrast, which)
-        for which, name in ((1, "fine"), (2, "coarse"))
-        for contrast in (0.4, 0.6)
-    },
+    **CODE_STRIPED,
 }
 GEOMETRIES = {
     "the default rig": {},
@@ -112,76 +117,113 @@ def outside_scenes(rig, kind: str, seed: int) -> Scene:
 OUTSIDE = ("near planes", "far planes", "objects before a far wall", "a box reaching out of the range")
 
 
-def measure(model, rig, patterns, scenes, texture=None, make=make_scene) -> tuple[ErrorTotals, ErrorTotals]:
-    """The model's output on scenes (make(rig, kind, seed)) rendered by rig showing patterns: totals at 1
-    mm and at 4 mm."""
-    within, beyond = ErrorTotals(), ErrorTotals()
+def measure(models, rig, patterns, scenes, texture=None, make=make_scene) -> list[tuple[ErrorTotals, ErrorTotals]]:
+    """Each model's output on scenes (make(rig, kind, seed)) rendered by rig showing patterns, each scene
+    rendered once for all: totals at 1 mm and at 4 mm."""
+    totals = [(ErrorTotals(), ErrorTotals()) for _ in models]
     for kind, seed in scenes:
         scene = make(rig, kind, seed)
         if texture is not None:
             scene = textured(rig, patterns, scene, texture, seed)
         capture = render(rig, scene, patterns, np.random.default_rng(seed))
         truth = np.where(capture.valid, capture.depth_mm, np.nan)
-        depth = model(capture.images[patterns.single_shot_index])
-        within.add(depth, truth, 1.0)
-        beyond.add(depth, truth, 4.0)
-    return within, beyond
+        for model, (within, beyond) in zip(models, totals):
+            depth = model(capture.images[patterns.single_shot_index])
+            within.add(depth, truth, 1.0)
+            beyond.add(depth, truth, 4.0)
+    return totals
+
+
+# The rule for a candidate network (docs/single-shot.md, what a candidate passes before it ships): in no
+# cell of these tables may its share off by more than 1 mm exceed the shipped network's by more than this,
+# and no code-striped surface may get a pixel.
+RULE_BAR = 0.001
+
+
+def rule_failures(cells: dict, against: dict) -> list[str]:
+    """The cells ({(table row, column): (coverage, share off by > 1 mm)}) that break the rule against
+    another network's cells."""
+    failures = []
+    for (row, column), (coverage, over) in cells.items():
+        name = f"{row}{f' ({column})' if column else ''}"
+        if (row, column) in against and over > against[row, column][1] + RULE_BAR:
+            failures.append(f"{name}: {against[row, column][1]:.2%} -> {over:.2%} off by more than 1 mm")
+        if row in CODE_STRIPED and coverage > 0:
+            failures.append(f"{name}: {coverage:.1%} of a code-striped surface given a depth")
+    return failures
+
+
+def cell(within: ErrorTotals, beyond: ErrorTotals) -> str:
+    return f"{within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}"
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", default=default_model_path())
     parser.add_argument(
+        "--against", help="the shipped network (a candidate's peer): its cells beside, then the rule's verdict"
+    )
+    parser.add_argument(
         "--seed", type=int, default=7001, help="scenes of seeds seed and seed + 1, outside the range seed + 100 to 103"
     )
     args = parser.parse_args(argv)
+    paths = [args.model] + ([args.against] if args.against else [])
     scenes = [(family, args.seed + i) for family in PHOTOMETRY_FAMILIES for i in (0, 1)]
     geometry_scenes = [(kind, args.seed + i) for kind in GEOMETRY_FAMILIES for i in (0, 1)]
     base = Rig()
     patterns = base.pattern_set()  # pre-compensated for the default gamma, whatever the projector's is
-    model = DepthModel(args.model)
-    print(f"{len(scenes)} scenes (the sculpture and fresh seeds of freeform, blocks, bust), {args.model}")
-    print(f"{'photometry':46} {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
+    models = [DepthModel(path) for path in paths]
+    cells = [{} for _ in paths]  # each model's {(row, column): (coverage, share off by > 1 mm)}
+
+    def row(name: str, totals: list, columns=("",)) -> None:
+        """Print a row of each model's cells (totals: for each model, for each column) and keep them."""
+        for i, per_column in enumerate(totals):
+            for column, t in zip(columns, per_column):
+                if t is not None:
+                    cells[i][name, column] = (t[0].coverage, t[0].share_over)
+        text = " | ".join("   ".join(cell(*t) if t else f"{'-':>6} {'-':>6} {'-':>7}" for t in m) for m in totals)
+        print(f"{name:46} {text}")
+
+    columns = f"{'cover':>6} {'>1mm':>6} {'>4mm':>7}"
+    print(f"{len(scenes)} scenes (the sculpture and fresh seeds of freeform, blocks, bust), {' | '.join(paths)}")
+    print(f"{'photometry':46} {' | '.join([columns] * len(paths))}")
     for name, changes in CONDITIONS.items():
-        within, beyond = measure(model, replace(base, **changes), patterns, scenes)
-        print(f"{name:46} {within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
-    print(f"\n{'texture':46} {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
+        row(name, [[t] for t in measure(models, replace(base, **changes), patterns, scenes)])
+    print(f"\n{'texture':46} {' | '.join([columns] * len(paths))}")
     for name, texture in TEXTURES.items():
-        within, beyond = measure(model, base, patterns, scenes, texture)
-        print(f"{name:46} {within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
+        row(name, [[t] for t in measure(models, base, patterns, scenes, texture)])
     print(f"\n{len(geometry_scenes)} scenes (fresh seeds of the sculpture and of separated objects)")
-    print(f"{'':46} {'the rig calibration':>21}   {'the card calibration':>21}")
-    print(f"{'geometry':46} {'cover':>6} {'>1mm':>6} {'>4mm':>7}   {'cover':>6} {'>1mm':>6} {'>4mm':>7}")
+    pair = f"{'the rig calibration':>21}   {'the card calibration':>21}"
+    print(f"{'':46} {' | '.join([pair] * len(paths))}")
+    print(f"{'geometry':46} {' | '.join([columns + '   ' + columns] * len(paths))}")
     for name, changes in GEOMETRIES.items():
         rig = replace(base, **changes)
         planes = [rig.standoff_mm + dz for dz in (-60.0, -30.0, 0.0, 30.0, 60.0)]
         calibration, _ = simulated_calibration(rig, patterns, 1, planes, working_range_mm=None)
-        cells = []
-        for decoding in (DepthModel(args.model, calibration=calibration), model):
-            if decoding.size != (rig.width, rig.height):  # the card's calibration: its camera's size only
-                cells.append(f"{'-':>6} {'-':>6} {'-':>7}")
-                continue
-            within, beyond = measure(decoding, rig, patterns, geometry_scenes)
-            cells.append(f"{within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
-        print(f"{name:46} {cells[0]}   {cells[1]}")
-    without = DepthModel(args.model)
-    without.decoder.max_outside = np.inf
-    print(f"\n{'':46} {'the card':>21}   {'without max_outside':>21}")
-    columns = f"{'cover':>6} {'>1mm':>6} {'>4mm':>7}"
-    print(f"{'outside the working range (4 scenes each)':46} {columns}   {columns}")
+        decodings = [(DepthModel(path, calibration=calibration), model) for path, model in zip(paths, models)]
+        # the card's calibration: its camera's size only
+        readable = [d for pair in decodings for d in pair if d.size == (rig.width, rig.height)]
+        totals = dict(zip(map(id, readable), measure(readable, rig, patterns, geometry_scenes)))
+        row(name, [[totals.get(id(d)) for d in pair] for pair in decodings], ("", "the card calibration"))
+    pair = f"{'the card':>21}   {'without max_outside':>21}"
+    print(f"\n{'':46} {' | '.join([pair] * len(paths))}")
+    print(f"{'outside the working range (4 scenes each)':46} {' | '.join([columns + '   ' + columns] * len(paths))}")
+    withouts = []
+    for path in paths:
+        without = DepthModel(path)
+        without.decoder.max_outside = np.inf
+        withouts.append(without)
     for kind in OUTSIDE:
-        cells = []
-        for decoding in (model, without):
-            within, beyond = measure(
-                decoding,
-                base,
-                patterns,
-                [(kind, s) for s in range(args.seed + 100, args.seed + 104)],
-                make=outside_scenes,
-            )
-            cells.append(f"{within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}")
-        print(f"{kind:46} {cells[0]}   {cells[1]}")
+        outside = [(kind, s) for s in range(args.seed + 100, args.seed + 104)]
+        totals = measure(
+            [d for pair in zip(models, withouts) for d in pair], base, patterns, outside, make=outside_scenes
+        )
+        row(kind, [totals[2 * i : 2 * i + 2] for i in range(len(paths))], ("", "without max_outside"))
     print("cover: share of lit pixels given a depth; >1mm, >4mm: share of those off the exact depth by more")
+    if args.against:
+        failures = rule_failures(cells[0], cells[1])
+        print(f"\nthe rule against {args.against} (each cell's share off by more than 1 mm within {RULE_BAR:.1%}):")
+        print("\n".join(f"  fails: {f}" for f in failures) or "  passes")
 
 
 if __name__ == "__main__":
