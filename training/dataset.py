@@ -21,6 +21,7 @@ On disk (a folder per set and split, one file per sample):
                                  fringe float16 (2, H, W)  its numerator and denominator
                                  family str                the scene family (a bag's sample: the bag's name;
                                                            composite_hard: its condition's, HARD_CONDITIONS)
+                 composite_hard: condition str             what was beyond training, e.g. 'bust: black print'
                  composite (and bags): code   float16 (2 x codes, H, W)  the code gratings (phase_targets)
 """
 
