@@ -83,8 +83,9 @@ paper-model: setup
 # validation scenes), 30 more epochs from its best at a quarter of the rate, 40 more at a restarted
 # rate, export with its rules chosen on 200 validation scenes, the per-family tables (with FTP on the
 # same composite images) of the test split and of a fresh draw of test scenes (composite_retest), and
-# the failure cases beside the paper's UNet. The shipped model is this recipe (about 95 minutes on 2
-# cores with AVX-512; docs/single-shot.md).
+# the failure cases beside the paper's UNet. The shipped model is this recipe (2 h 0 min from a fresh
+# clone on 2 cores with AVX-512, measured; a second run scores within a few points per family of it:
+# docs/single-shot.md). It overwrites the shipped model file: git checkout it back to keep that one.
 COMPOSITE_EPOCHS ?= 90
 .PHONY: composite-model
 composite-model: setup
