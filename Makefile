@@ -84,8 +84,8 @@ paper-model: setup
 # rate, export with its rules chosen on 200 validation scenes, the per-family tables (with FTP on the
 # same composite images) of the test split and of a fresh draw of test scenes (composite_retest), and
 # the failure cases beside the paper's UNet. The shipped model is this recipe (2 h 0 min from a fresh
-# clone on 2 cores with AVX-512, measured; a second run scores within a few points per family of it:
-# docs/single-shot.md). It overwrites the shipped model file: git checkout it back to keep that one.
+# clone on 2 cores with AVX-512, measured; a second run differed from it by up to 6.5 points a family
+# and draw: docs/single-shot.md). It overwrites the shipped model file: git checkout it back to keep that one.
 COMPOSITE_EPOCHS ?= 90
 .PHONY: composite-model
 composite-model: setup
