@@ -150,13 +150,12 @@ def rule_failures(rows: dict, against: dict) -> list[str]:
     for row, (coverage, over) in rows.items():
         if row in against:
             peer_coverage, peer_over = against[row]
-            if over > peer_over + RULE_BAR:
-                failures.append(f"{row}: {peer_over:.2%} -> {over:.2%} of the output off by more than 1 mm")
-            if coverage * over > peer_coverage * peer_over + RULE_BAR:
-                failures.append(
-                    f"{row}: {peer_coverage * peer_over:.2%} -> {coverage * over:.2%} of the lit pixels given a "
-                    "depth off by more than 1 mm"
-                )
+            for share, mine, peer in (
+                ("of the output", over, peer_over),
+                ("of the lit pixels given a depth", coverage * over, peer_coverage * peer_over),
+            ):
+                if mine > peer + RULE_BAR:
+                    failures.append(f"{row}: {peer:.2%} -> {mine:.2%} {share} off by more than 1 mm")
         if row in CODE_STRIPED and coverage > 0:
             failures.append(f"{row}: {coverage:.1%} of a code-striped surface given a depth")
     return failures
