@@ -38,6 +38,11 @@ PERIOD_TOLERANCE = 0.05
 # it, is outside it (chosen on validation, every surface in the range: 1 frame in 200 passes it; beyond the
 # range the codes repeat and name wrong orders inside it on much of a surface, docs/single-shot.md)
 OUTSIDE_WARNING = 0.3
+# or more than this share of them refused for naming orders inside the range where the codes repeat beyond it
+# (CompositeDecoder.beyond): objects standing in the range before a far wall, whose fringes mostly name orders
+# of the range (validation, every surface in the range: at most 0.14% in its 200 frames; 5-41% on frames of
+# exploration seeds with surfaces outside it; docs/single-shot.md)
+BEYOND_WARNING = 0.01
 
 
 class ModelError(ValueError):
@@ -177,14 +182,19 @@ class DepthModel:
     def warnings(self) -> dict[str, str]:
         """After a frame of a composite model: {what the frame was: what to say} where more than
         OUTSIDE_WARNING of its pixels with fringes named no order of the working range
-        (CompositeDecoder.outside_range; with the share it refused there, CompositeDecoder.beyond), and
-        where it refused surfaces for an albedo striped like the pattern's code gratings
-        (CompositeDecoder.striped)."""
+        (CompositeDecoder.outside_range) or more than BEYOND_WARNING were refused where the codes repeat
+        beyond it (CompositeDecoder.beyond), and where it refused surfaces for an albedo striped like the
+        pattern's code gratings (CompositeDecoder.striped)."""
         said = {}
-        if (outside := getattr(self.decoder, "outside_range", 0.0)) > OUTSIDE_WARNING:
+        outside, beyond = (getattr(self.decoder, name, 0.0) for name in ("outside_range", "beyond"))
+        if outside > OUTSIDE_WARNING or beyond > BEYOND_WARNING:
             near, far = (self.calibration or self.card_calibration).working_range_mm
-            beyond = getattr(self.decoder, "beyond", 0.0)
-            refused = f" (and {beyond:.1%} more were refused where they repeat beyond it)" if round(beyond, 3) else ""
+            refused = (
+                f" (and {beyond:.1%} more were refused where they repeat beyond it; depth beside those may be "
+                "an order off)"
+                if round(beyond, 3)
+                else ""
+            )
             said["frames outside the working range"] = (
                 f"the codes of {outside:.0%} of the pixels with fringes name no order of the working range "
                 f"{near:g}-{far:g} mm{refused}: is the scene, or part of it, nearer or farther, or are its "

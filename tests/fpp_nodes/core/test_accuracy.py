@@ -17,7 +17,7 @@ from fpp_nodes.core.reconstruct import (
     trusted_depth,
 )
 from fpp_nodes.core.scenes import SURFACE_DEPTH_MM, make_scene, plane_scene
-from fpp_nodes.core.simulation import Rig, render
+from fpp_nodes.core.simulation import Rig, Scene, render
 from fpp_nodes.core.workflow import fringe_depth_mm, held_out_scenes, score, simulated_calibration
 
 
@@ -198,8 +198,9 @@ def test_the_shipped_single_shot_model_says_nan_beyond_its_working_range(rig, pa
     give them the nearest order inside, every pixel an order or more off; now they say NaN: at most
     0.5% of the lit pixels get a depth (measured 0%). A plane tilted across the near end keeps its depth
     inside the range (measured 0% off by more than 1 mm) and says NaN beyond it. The warning names the
-    share the rule against repeating codes refused only where it refused some (a plane at 1800 mm)."""
-    from fpp_nodes.core.model import DepthModel, default_model_path
+    share the rule against repeating codes refused only where it refused some (a plane at 1800 mm), and
+    that share alone warns of a sculpture before a far wall, too few of whose fringes name no order."""
+    from fpp_nodes.core.model import BEYOND_WARNING, OUTSIDE_WARNING, DepthModel, default_model_path
 
     model = DepthModel(default_model_path())
     near, far = SURFACE_DEPTH_MM
@@ -223,6 +224,14 @@ def test_the_shipped_single_shot_model_says_nan_beyond_its_working_range(rig, pa
     model(render(rig, plane_scene(rig, 1800.0), patterns, np.random.default_rng(2)).images[patterns.single_shot_index])
     warning = model.warnings()["frames outside the working range"]
     assert f"(and {model.decoder.beyond:.1%} more were refused" in warning and model.decoder.beyond > 0.1, warning
+    # the sculpture standing in the range before a wall at 2200 mm: most fringes name orders of the range, a
+    # fifth none (measured 21%, 26% refused); the warning says so from what the rule refused
+    scene = make_scene(rig, "sculpture", 1)
+    standing = scene.depth_mm < np.median(scene.depth_mm) - 8
+    scene = Scene("before a wall", np.where(standing, scene.depth_mm, 2200.0), np.where(standing, scene.albedo, 0.7))
+    model(render(rig, scene, patterns, np.random.default_rng(1)).images[patterns.single_shot_index])
+    assert model.decoder.outside_range < OUTSIDE_WARNING and model.decoder.beyond > 10 * BEYOND_WARNING
+    assert "more were refused" in model.warnings()["frames outside the working range"]
 
 
 def test_the_shipped_single_shot_model_measures_a_rig_at_another_standoff_through_its_calibration(
