@@ -15,8 +15,9 @@ with the rig's calibration; beside it, the same decoded with the model card's ca
 rig's, what cnn_depth used before; '-' for cameras of another size, which it cannot read). Outside
 the working range: surfaces nearer or farther than the calibration's working range (1000-1350 mm in the
 default rig), where the composite's codes begin to repeat; beside the card's rules, the same without
-the rule against them (the decoder's max_outside). Prints the coverage of the lit pixels and the share
-of the output off the exact depth by more than 1 and 4 mm.
+the rule against them (the decoder's max_outside). Prints the coverage of the lit pixels, the share
+of the output off the exact depth by more than 1 and 4 mm, and the number of frames on which the sensor
+warns of the working range.
 
     python scripts/single_shot_conditions.py [--model M] [--seed S]
     python scripts/single_shot_conditions.py --model CANDIDATE.onnx --against SHIPPED.onnx --seed S [S2 ...]
@@ -117,20 +118,21 @@ def outside_scenes(rig, kind: str, seed: int) -> Scene:
 OUTSIDE = ("near planes", "far planes", "objects before a far wall", "a box reaching out of the range")
 
 
-def measure(models, rig, patterns, scenes, texture=None, make=make_scene) -> list[tuple[ErrorTotals, ErrorTotals]]:
+def measure(models, rig, patterns, scenes, texture=None, make=make_scene) -> list[list]:
     """Each model's output on scenes (make(rig, kind, seed)) rendered by rig showing patterns, each scene
-    rendered once for all: totals at 1 mm and at 4 mm."""
-    totals = [(ErrorTotals(), ErrorTotals()) for _ in models]
+    rendered once for all: [totals at 1 mm, totals at 4 mm, the frames it warned of the working range on]."""
+    totals = [[ErrorTotals(), ErrorTotals(), 0] for _ in models]
     for kind, seed in scenes:
         scene = make(rig, kind, seed)
         if texture is not None:
             scene = textured(rig, patterns, scene, texture, seed)
         capture = render(rig, scene, patterns, np.random.default_rng(seed))
         truth = np.where(capture.valid, capture.depth_mm, np.nan)
-        for model, (within, beyond) in zip(models, totals):
+        for model, total in zip(models, totals):
             depth = model(capture.images[patterns.single_shot_index])
-            within.add(depth, truth, 1.0)
-            beyond.add(depth, truth, 4.0)
+            total[0].add(depth, truth, 1.0)
+            total[1].add(depth, truth, 4.0)
+            total[2] += "frames outside the working range" in model.warnings()
     return totals
 
 
@@ -161,8 +163,8 @@ def rule_failures(rows: dict, against: dict) -> list[str]:
     return failures
 
 
-def cell(within: ErrorTotals, beyond: ErrorTotals) -> str:
-    return f"{within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%}"
+def cell(within: ErrorTotals, beyond: ErrorTotals, warned: int) -> str:
+    return f"{within.coverage:6.1%} {within.share_over:6.2%} {beyond.share_over:7.3%} {warned:4d}"
 
 
 def main(argv=None):
@@ -191,10 +193,12 @@ def main(argv=None):
         """Print a row of each model's cells (totals: for each model, for each column) and keep the first."""
         for i, (first, *_) in enumerate(totals):
             rows[i][name] = (first[0].coverage, first[0].share_over)
-        text = " | ".join("   ".join(cell(*t) if t else f"{'-':>6} {'-':>6} {'-':>7}" for t in m) for m in totals)
+        text = " | ".join(
+            "   ".join(cell(*t) if t else f"{'-':>6} {'-':>6} {'-':>7} {'-':>4}" for t in m) for m in totals
+        )
         print(f"{name:46} {text}")
 
-    columns = f"{'cover':>6} {'>1mm':>6} {'>4mm':>7}"
+    columns = f"{'cover':>6} {'>1mm':>6} {'>4mm':>7} {'warn':>4}"
     print(f"{len(scenes)} scenes (the sculpture and fresh seeds of freeform, blocks, bust), {' | '.join(paths)}")
     print(f"{'photometry':46} {' | '.join([columns] * len(paths))}")
     for name, changes in CONDITIONS.items():
@@ -203,7 +207,7 @@ def main(argv=None):
     for name, texture in TEXTURES.items():
         row(name, [[t] for t in measure(models, base, patterns, scenes, texture)])
     print(f"\n{len(geometry_scenes)} scenes (fresh seeds of the sculpture and of separated objects)")
-    pair = f"{'the rig calibration':>21}   {'the card calibration':>21}"
+    pair = f"{'the rig calibration':>26}   {'the card calibration':>26}"
     print(f"{'':46} {' | '.join([pair] * len(paths))}")
     print(f"{'geometry':46} {' | '.join([columns + '   ' + columns] * len(paths))}")
     for name, changes in GEOMETRIES.items():
@@ -215,7 +219,7 @@ def main(argv=None):
         readable = [d for pair in decodings for d in pair if d.size == (rig.width, rig.height)]
         totals = dict(zip(map(id, readable), measure(readable, rig, patterns, geometry_scenes)))
         row(name, [[totals.get(id(d)) for d in pair] for pair in decodings])
-    pair = f"{'the card':>21}   {'without max_outside':>21}"
+    pair = f"{'the card':>26}   {'without max_outside':>26}"
     print(f"\n{'':46} {' | '.join([pair] * len(paths))}")
     title = f"outside the working range ({4 * len(args.seed)} scenes each)"
     print(f"{title:46} {' | '.join([columns + '   ' + columns] * len(paths))}")
@@ -230,7 +234,8 @@ def main(argv=None):
             [d for pair in zip(models, withouts) for d in pair], base, patterns, outside, make=outside_scenes
         )
         row(kind, [totals[2 * i : 2 * i + 2] for i in range(len(paths))])
-    print("cover: share of lit pixels given a depth; >1mm, >4mm: share of those off the exact depth by more")
+    print("cover: share of lit pixels given a depth; >1mm, >4mm: share of those off the exact depth by more;")
+    print("warn: the frames on which cnn_depth and fpp warn of the working range (DepthModel.warnings)")
     if args.against:
         failures = rule_failures(rows[0], rows[1])
         print(
