@@ -8,7 +8,8 @@ the newest frame (KEEP_LAST 1): under load older frames are dropped, never queue
 depth/image (32FC1, metres, NaN where the image shows no usable fringes: shadows, dark or saturated
 areas), depth/camera_info and points (organized PointCloud2, metres), with the image's header, and
 its health on /diagnostics (for the composite model also the share of the pixels with fringes whose
-codes name no order of the calibration's working range, a warning when 30% do). A phase-aware model
+codes name no order of the calibration's working range, a warning when 30% do or when the decoder
+refuses 1% for codes that repeat beyond it: DepthModel.warnings). A phase-aware model
 also gives confidence/image (32FC1, 0-1: for the composite model the share of the pixels around it,
 and of its whole surface, whose codes give the order chosen there, the lesser of the two; for the
 paper-pattern phase model the probability that the order is right; depth is NaN below the threshold
