@@ -34,7 +34,7 @@ from dataclasses import replace
 import numpy as np
 
 from fpp_nodes.core.metrics import ErrorTotals
-from fpp_nodes.core.model import DepthModel, default_model_path
+from fpp_nodes.core.model import RANGE_WARNING, DepthModel, default_model_path
 from fpp_nodes.core.scenes import (
     black_print,
     fine_stripes,
@@ -132,7 +132,7 @@ def measure(models, rig, patterns, scenes, texture=None, make=make_scene) -> lis
             depth = model(capture.images[patterns.single_shot_index])
             total[0].add(depth, truth, 1.0)
             total[1].add(depth, truth, 4.0)
-            total[2] += "frames outside the working range" in model.warnings()
+            total[2] += RANGE_WARNING in model.warnings()
     return totals
 
 

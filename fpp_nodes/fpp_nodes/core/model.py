@@ -43,6 +43,7 @@ OUTSIDE_WARNING = 0.3
 # of the range (validation, every surface in the range: at most 0.14% in its 200 frames; 5-41% on frames of
 # exploration seeds with surfaces outside it; docs/single-shot.md)
 BEYOND_WARNING = 0.01
+RANGE_WARNING = "frames outside the working range"  # the warning's name, on /diagnostics and in fpp
 
 
 class ModelError(ValueError):
@@ -195,7 +196,7 @@ class DepthModel:
                 if round(beyond, 3)
                 else ""
             )
-            said["frames outside the working range"] = (
+            said[RANGE_WARNING] = (
                 f"the codes of {outside:.0%} of the pixels with fringes name no order of the working range "
                 f"{near:g}-{far:g} mm{refused}: is the scene, or part of it, nearer or farther, or are its "
                 "codes unreadable?"
