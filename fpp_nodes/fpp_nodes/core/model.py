@@ -34,15 +34,6 @@ MIN_MODULATION = 0.05  # as the multi-shot path's QualityLimits: a fraction of f
 # A composite network sees a rig's fringes at the period it was trained on: the image is resampled where
 # the periods differ by more than this (surfaces tilted by 20 degrees in training already change it by 6%)
 PERIOD_TOLERANCE = 0.05
-# more than this share of the pixels with fringes naming no order of the working range: the scene, or part of
-# it, is outside it (chosen on validation, every surface in the range: 1 frame in 200 passes it; beyond the
-# range the codes repeat and name wrong orders inside it on much of a surface, docs/single-shot.md)
-OUTSIDE_WARNING = 0.3
-# or more than this share of them refused for naming orders inside the range where the codes repeat beyond it
-# (CompositeDecoder.beyond): objects standing in the range before a far wall, whose fringes mostly name orders
-# of the range (validation, every surface in the range: at most 0.14% in its 200 frames; 5-41% on frames of
-# exploration seeds with surfaces outside it; docs/single-shot.md)
-BEYOND_WARNING = 0.01
 RANGE_WARNING = "frames outside the working range"  # the warning's name, on /diagnostics and in fpp
 
 
@@ -181,26 +172,12 @@ class DepthModel:
         self.input_size = tuple(round(n * scale) // self.downsample for n in size)
 
     def warnings(self) -> dict[str, str]:
-        """After a frame of a composite model: {what the frame was: what to say} where more than
-        OUTSIDE_WARNING of its pixels with fringes named no order of the working range
-        (CompositeDecoder.outside_range) or more than BEYOND_WARNING were refused where the codes repeat
-        beyond it (CompositeDecoder.beyond), and where it refused surfaces for an albedo striped like the
-        pattern's code gratings (CompositeDecoder.striped)."""
+        """After a frame of a composite model: {what the frame was: what to say} where its scene, or part
+        of it, seems to lie outside the working range (CompositeDecoder.range_warning), and where it
+        refused surfaces for an albedo striped like the pattern's code gratings (CompositeDecoder.striped)."""
         said = {}
-        outside, beyond = (getattr(self.decoder, name, 0.0) for name in ("outside_range", "beyond"))
-        if outside > OUTSIDE_WARNING or beyond > BEYOND_WARNING:
-            near, far = (self.calibration or self.card_calibration).working_range_mm
-            refused = (
-                f" (and {beyond:.1%} more were refused where they repeat beyond it; depth beside those may be "
-                "an order off)"
-                if round(beyond, 3)
-                else ""
-            )
-            said[RANGE_WARNING] = (
-                f"the codes of {outside:.0%} of the pixels with fringes name no order of the working range "
-                f"{near:g}-{far:g} mm{refused}: is the scene, or part of it, nearer or farther, or are its "
-                "codes unreadable?"
-            )
+        if isinstance(self.decoder, CompositeDecoder) and (warning := self.decoder.range_warning()):
+            said[RANGE_WARNING] = warning
         if striped := getattr(self.decoder, "striped", 0.0):
             said["frames with surfaces striped like the pattern"] = (
                 f"{striped:.1%} of the pixels with fringes lie on surfaces striped like the pattern's code "

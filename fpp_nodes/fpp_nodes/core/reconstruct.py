@@ -296,6 +296,7 @@ class CompositeDecoder:
         max_outside: float = np.inf,
     ):
         self.min_surface_px, self.max_sideband, self.max_outside = min_surface_px, max_sideband, max_outside
+        self.outside_range = self.striped = self.beyond = 0.0  # until the first call
         if not calibration.code_models:
             raise PhaseError("the composite decoder needs a calibration made with the composite pattern (code models)")
         if calibration.working_range_mm is None:
@@ -303,7 +304,7 @@ class CompositeDecoder:
                 "the calibration has no working range: calibrate again (fpp calibrate), or add "
                 "working_range_mm: [near, far] (mm, where surfaces may be) to its file"
             )
-        near, far = calibration.working_range_mm
+        near, far = self.working_range_mm = calibration.working_range_mm
         cam = calibration.camera
         u, v = cam.ideal_pixels()
         ends = [np.broadcast_to(calibration.model.phase_at_depth(z, u, v), cam.shape) for z in (near, far)]
@@ -438,6 +439,25 @@ class CompositeDecoder:
         np.put(agreeing, unsure[np.abs(fit - median) < np.pi], True)
         return outside_share(agreeing, fringes) > self.max_outside
 
+    def range_warning(self) -> str | None:
+        """After a call: what to say where more than OUTSIDE_WARNING of the pixels with fringes named no
+        order of the working range (outside_range) or more than BEYOND_WARNING were refused where the
+        codes repeat beyond it (beyond); None where neither."""
+        if self.outside_range <= OUTSIDE_WARNING and self.beyond <= BEYOND_WARNING:
+            return None
+        near, far = self.working_range_mm
+        refused = (
+            f" (and {self.beyond:.1%} more were refused where they repeat beyond it; depth beside those may be "
+            "an order off)"
+            if round(self.beyond, 3)
+            else ""
+        )
+        return (
+            f"the codes of {self.outside_range:.0%} of the pixels with fringes name no order of the working range "
+            f"{near:g}-{far:g} mm{refused}: is the scene, or part of it, nearer or farther, or are its codes "
+            "unreadable?"
+        )
+
     def __call__(
         self,
         out: np.ndarray,
@@ -495,6 +515,17 @@ class CompositeDecoder:
         depth = (ca + cb * own) / (da + db * own)
         np.copyto(depth, np.float32(np.nan), where=~(agree & (confidence >= min_confidence)) | beyond)
         return depth, confidence
+
+
+# more than this share of the pixels with fringes naming no order of the working range: the scene, or part of
+# it, is outside it (chosen on validation, every surface in the range: 1 frame in 200 passes it; beyond the
+# range the codes repeat and name wrong orders inside it on much of a surface, docs/single-shot.md)
+OUTSIDE_WARNING = 0.3
+# or more than this share of them refused for naming orders inside the range where the codes repeat beyond it
+# (CompositeDecoder.beyond): objects standing in the range before a far wall, whose fringes mostly name orders
+# of the range (the shipped network on validation, every surface in the range: at most 0.14% in its 200
+# frames; 5-41% on frames of exploration seeds with surfaces outside it; docs/single-shot.md)
+BEYOND_WARNING = 0.01
 
 
 # The window outside_share takes: OUTSIDE_WINDOW blocks of OUTSIDE_BLOCK pixels (120 px), about two of the

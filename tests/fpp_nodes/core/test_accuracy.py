@@ -200,7 +200,8 @@ def test_the_shipped_single_shot_model_says_nan_beyond_its_working_range(rig, pa
     inside the range (measured 0% off by more than 1 mm) and says NaN beyond it. The warning names the
     share the rule against repeating codes refused only where it refused some (a plane at 1800 mm), and
     that share alone warns of a sculpture before a far wall, too few of whose fringes name no order."""
-    from fpp_nodes.core.model import BEYOND_WARNING, OUTSIDE_WARNING, DepthModel, default_model_path
+    from fpp_nodes.core.model import DepthModel, default_model_path
+    from fpp_nodes.core.reconstruct import BEYOND_WARNING, OUTSIDE_WARNING
 
     model = DepthModel(default_model_path())
     near, far = SURFACE_DEPTH_MM
