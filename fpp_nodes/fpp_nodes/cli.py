@@ -229,8 +229,13 @@ def _reconstruct(
             quality,
             np.full(depth.shape, np.nan, np.float32),
         )
+    # FTP's codes are noisier than the network's: no threshold of the range rule refuses little enough of its
+    # validation output (scripts/ftp_range_rule.py), so it has the warning alone
     decoder = CompositeDecoder(calibration) if calibration.code_models else None
-    return reconstruct_ftp(images[index], calibration, limits, decoder)
+    result = reconstruct_ftp(images[index], calibration, limits, decoder)
+    if decoder is not None and (warning := decoder.range_warning()):
+        print(f"warning: {warning}", file=sys.stderr)
+    return result
 
 
 def write_pictures(

@@ -50,7 +50,7 @@ def test_simulate_writes_images_and_ground_truth(workdir):
 def test_reconstruct_and_evaluate(workdir, method, bound):
     out = workdir / f"out_{method}"
     r = fpp("reconstruct", workdir / "scene", "--calibration", workdir / "cal.yaml", "--method", method, "--out", out)
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == 0 and "working range" not in r.stderr, r.stderr
     for name in ("depth_mm.npy", "depth_mm.tiff", "points.ply", "depth.png"):
         assert (out / name).is_file()
     ply = (out / "points.ply").read_bytes()
@@ -200,6 +200,17 @@ def test_reconstruct_with_the_single_shot_network(tmp_path):
     r = cnn(default_calibration_path(), out="far")
     assert r.returncode == 0 and np.isnan(np.load(tmp_path / "far" / "depth_mm.npy")).all()
     assert "no order of the working range 1000-1350 mm" in r.stderr, r.stderr
+    r = fpp(
+        "reconstruct",
+        tmp_path / "scene",
+        "--calibration",
+        default_calibration_path(),
+        "--method",
+        "ftp",
+        "--out",
+        tmp_path / "ftp",
+    )
+    assert r.returncode == 0 and "no order of the working range 1000-1350 mm" in r.stderr, r.stderr  # FTP too
     r = cnn(default_calibration_path(), "--model", tmp_path / "missing.onnx")
     assert r.returncode == 2 and "does not exist" in r.stderr
 
