@@ -11,15 +11,12 @@ the network's), so `fpp reconstruct --method ftp` has no range rule, only the wa
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
-import yaml
 
-from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.reconstruct import CompositeDecoder, reconstruct_ftp
 from training.dataset import load_sample, split_files
-from training.export import OUTSIDE_GRID, OUTSIDE_REFUSAL_BUDGET
+from training.export import OUTSIDE_GRID, OUTSIDE_REFUSAL_BUDGET, lowest_within, sets_calibration
 
 
 def main(argv=None):
@@ -27,7 +24,7 @@ def main(argv=None):
     parser.add_argument("--data", default="data/fpp/composite")
     parser.add_argument("--limit", type=int, default=200)
     args = parser.parse_args(argv)
-    calibration = Calibration.from_dict(yaml.safe_load((Path(args.data) / "dataset.yaml").read_text())["calibration"])
+    calibration = sets_calibration([args.data])
     thresholds = (*OUTSIDE_GRID, np.inf)
     decoders = {t: CompositeDecoder(calibration, max_outside=t) for t in thresholds}
     output = dict.fromkeys(thresholds, 0)
@@ -37,9 +34,9 @@ def main(argv=None):
         for t, decoder in decoders.items():
             output[t] += np.count_nonzero(np.isfinite(reconstruct_ftp(image, calibration, decoder=decoder).depth_mm))
     print(f"FTP on {len(files)} validation scenes of {args.data}: the share of its output each max_outside refuses")
-    for t in OUTSIDE_GRID:
-        print(f"  {t:5g}  {1 - output[t] / output[np.inf]:.6f}")
-    lowest = min((t for t in OUTSIDE_GRID if 1 - output[t] / output[np.inf] <= OUTSIDE_REFUSAL_BUDGET), default=np.inf)
+    lowest, refused = lowest_within(output, OUTSIDE_GRID, OUTSIDE_REFUSAL_BUDGET)
+    for t, share in refused.items():
+        print(f"  {t:5g}  {share:.6f}")
     print(f"chosen (the lowest within {OUTSIDE_REFUSAL_BUDGET:g}): {lowest:g}")
 
 

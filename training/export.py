@@ -259,9 +259,16 @@ def lowest_within_budget(files, model, decoder, fixed: tuple, rule: str, other: 
     counts = parallel_counts(files, model, decoder, (*fixed, *grids))
     # rule_counts' keys: (floor, surface px, sideband, outside, ...)
     output = {key[2 + which]: sum(n[0] for n in by_family.values()) for key, by_family in counts.items()}
+    lowest, refused = lowest_within(output, thresholds, budget)
+    return lowest, {str(x): round(r, 6) for x, r in refused.items()}
+
+
+def lowest_within(output: dict, thresholds, budget: float) -> tuple[float, dict]:
+    """output: {threshold: the output pixels a refusal rule leaves at it, np.inf: with the rule off} -> the
+    lowest of thresholds that refuses at most budget of the output (np.inf where none does), and
+    {threshold: the share it refuses}."""
     refused = {x: float(1 - output[x] / output[np.inf]) if output[np.inf] else 0.0 for x in thresholds}
-    lowest = min((x for x, r in refused.items() if r <= budget), default=np.inf)
-    return float(lowest), {str(x): round(r, 6) for x, r in refused.items()}
+    return float(min((x for x, r in refused.items() if r <= budget), default=np.inf)), refused
 
 
 def parallel_counts(files, model, decoder, grids: tuple) -> dict:
