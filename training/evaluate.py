@@ -49,13 +49,40 @@ def predict_full(model, image: np.ndarray, downsample: int) -> np.ndarray:
 SILENT_ERROR_MM = 1.0
 
 
-def largest_surface(depth: np.ndarray, max_step_mm: float) -> np.ndarray:
-    """The pixels of the largest surface in a depth map (NaN: none; order_surfaces): 4-neighbours
-    joined where their depths differ by at most max_step_mm, a pixel beside a larger step on none. With half a fringe
-    order for the step (Itoh's condition, which CompositeDecoder's surfaces use too), the background of
-    a scene with one: what the single-shot issue calls the surfaces continuous with the background."""
+# An exact depth's plane fits to float32's precision (1e-4 mm at 1.2 m); a recorded set's label, noisy, fits none.
+PLANE_TOLERANCE_MM = 0.05
+# A backdrop fills much of the view; a floating object's top face, however flat, is none.
+MIN_BACKGROUND_SHARE = 0.25
+
+
+def main_surface(depth: np.ndarray, max_step_mm: float, rays) -> np.ndarray:
+    """The pixels of the surfaces continuous with the background in a depth map (NaN: none): of the
+    surfaces (order_surfaces: 4-neighbours joined where their depths differ by at most max_step_mm, a
+    pixel beside a larger step on none), those with pixels on the background. The background is the
+    plane of the largest surface that is a plane with no pixel behind it and at least
+    MIN_BACKGROUND_SHARE of the image on it, so the pieces that objects cut it into count together.
+    Where no surface is such a plane (a background joined to the objects on it in one surface, no
+    background, a recorded label's noise), the largest surface. With half a fringe order for the step
+    (Itoh's condition, which CompositeDecoder's surfaces use too): what the single-shot issue calls the
+    surfaces continuous with the background. rays: the camera's x/z and y/z per pixel (a plane's
+    inverse depth is linear in them)."""
     labels, sizes = order_surfaces(depth, np.isfinite(depth), max_step_mm)
     sizes[0] = 0  # off every surface
+    x, y = (np.broadcast_to(r, depth.shape) for r in rays)
+    for label in np.argsort(sizes)[::-1][:8]:  # the background, or a piece of it, is among the largest
+        if sizes[label] < 0.01 * depth.size:
+            break
+        on = labels == label
+        terms = np.stack([np.ones(int(sizes[label])), x[on], y[on]], axis=1)
+        a, b, c = np.linalg.lstsq(terms, 1.0 / depth[on].astype(np.float64), rcond=None)[0]
+        behind = depth - 1.0 / (a + b * x + c * y)  # mm behind the plane
+        on_plane = (np.abs(behind) <= PLANE_TOLERANCE_MM) & (labels > 0)
+        if (
+            np.abs(behind[on]).max() <= PLANE_TOLERANCE_MM
+            and not np.nanmax(behind) > PLANE_TOLERANCE_MM
+            and np.count_nonzero(on_plane) >= MIN_BACKGROUND_SHARE * depth.size
+        ):
+            return np.isin(labels, np.unique(labels[on_plane]))
     return (labels == sizes.argmax()) & (labels > 0)
 
 
@@ -64,11 +91,11 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     held-out families too): RMSE against the exact depth (a recorded set has none: against its
     multi-shot label), silent errors (the share of output pixels off
     it by more than SILENT_ERROR_MM), coverage (the share of lit pixels given a depth), the coverage of
-    the largest surface continuous in the exact depth (largest_surface: the background, where the scene
-    has one) and, for a phase-aware model, the mean confidence in the fringe order over the lit pixels
-    that show fringes; beside them FTP on the same images where the set is the composite's, and the
-    multi-shot label. Wrong orders: the share of output pixels off by more than half a fringe order
-    (wrong_order_mm)."""
+    the surfaces continuous with the background in the exact depth (main_surface; the largest surface
+    where the scene has no background) and, for a phase-aware model, the mean confidence in the fringe
+    order over the lit pixels that show fringes; beside them FTP on the same images where the set is
+    the composite's, and the multi-shot label. Wrong orders: the share of output pixels off by more
+    than half a fringe order (wrong_order_mm)."""
     from .figures import load_models
 
     info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
@@ -80,14 +107,15 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     models.append(("multi-shot (the label)", None))  # what all the sequence's images measure: the reference
     held_out = set(info.get("held_out_families", []))
     wrong_order = wrong_order_mm(calibration)
-    # (family, model) -> ErrorTotals against the exact depth (over 1 mm; over wrong_order; on the largest
+    rays = calibration.camera.rays()
+    # (family, model) -> ErrorTotals against the exact depth (over 1 mm; over wrong_order; on the main
     # surface); [confidence sum, pixels]
-    errors, orders, main_surface, sure = {}, {}, {}, {}
+    errors, orders, main, sure = {}, {}, {}, {}
     for f in split_files(data, split)[: limit or None]:
         family = sample_family(f, info.get("scene", "?"))
         image, label, truth = load_sample(f)
         reference = reference_depth(label, truth)
-        on_main = np.where(largest_surface(reference, wrong_order), reference, np.nan)
+        on_main = np.where(main_surface(reference, wrong_order, rays), reference, np.nan)
         for name, predict in models:
             depth, confidence = (
                 (label, None)
@@ -98,7 +126,7 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
             )
             errors.setdefault((family, name), ErrorTotals()).add(depth, reference, SILENT_ERROR_MM)
             orders.setdefault((family, name), ErrorTotals()).add(depth, reference, wrong_order)
-            main_surface.setdefault((family, name), ErrorTotals()).add(depth, on_main)
+            main.setdefault((family, name), ErrorTotals()).add(depth, on_main)
             if confidence is not None:
                 known = confidence[np.isfinite(confidence) & np.isfinite(reference)]
                 totals = sure.setdefault((family, name), [0.0, 0])
@@ -116,7 +144,7 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
             rmse = f"{e.rmse:8.3f}" if e.compared else f"{'-':>8}"
             wrong = orders[(family, n)].share_over
             cells.append(
-                f"{rmse} {e.share_over:6.2%} {wrong:6.3%} {e.coverage:7.1%} {main_surface[family, n].coverage:6.1%} "
+                f"{rmse} {e.share_over:6.2%} {wrong:6.3%} {e.coverage:7.1%} {main[family, n].coverage:6.1%} "
                 + (f"{conf / known:5.2f}" if known else f"{'-':>5}")
             )
         print(f"{family + (' *' if family in held_out else ''):{first}}" + "".join(f"{c:>44}" for c in cells))
@@ -124,9 +152,10 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
         "RMSE against the exact depth (a recorded set's: the multi-shot label) over the pixels given a depth; "
         f">1mm: share of those off by more than {SILENT_ERROR_MM:g} mm (silent errors); orders: off by more than "
         f"half a fringe order ({wrong_order:.1f} mm, wrong orders); cover: share of lit pixels given a depth; "
-        "main: the same of the largest surface's (the background's where there is one; 4-neighbours within "
-        f"{wrong_order:.1f} mm of each other in the exact depth); conf: a phase-aware model's mean confidence in "
-        "the fringe order over the lit pixels that show fringes"
+        "main: the same of the surfaces continuous with the background (4-neighbours within "
+        f"{wrong_order:.1f} mm of each other in the exact depth; the largest surface where there is no "
+        "background, a plane at least a quarter of the image with nothing behind it); conf: a phase-aware "
+        "model's mean confidence in the fringe order over the lit pixels that show fringes"
     )
 
 

@@ -29,7 +29,7 @@ from training.dataset import (
     split_files,
     write_set,
 )
-from training.evaluate import family_table, largest_surface
+from training.evaluate import family_table, main_surface
 from training.export import (
     CONFIDENCE_GRID,
     FLOOR_GRID,
@@ -96,21 +96,27 @@ def test_no_two_sets_share_a_scene_but_the_pattern_comparison():
     assert seeds["composite"] == seeds["composite_paper"]
 
 
-def test_the_largest_surface_is_the_background_less_what_steps_cut_off():
-    """A plane tilted 30 degrees (0.14 mm a pixel), a block 30 mm tall and a plate 3 mm tall on it, and a
-    shadow: the largest surface is the plane with the plate (a step under the limit) but without the
-    block and the pixels beside its edges; the shadow is on no surface."""
-    depth = 1200.0 + 0.14 * np.arange(100, dtype=np.float32)[None, :].repeat(80, axis=0)
-    depth[20:40, 20:40] -= 30.0  # the block
-    depth[50:60, 60:90] -= 3.0  # the plate
+def test_the_main_surface_is_the_background_with_its_pieces_and_what_joins_it():
+    """A plane tilted about 30 degrees (a plane in 3D: inverse depth linear in the rays), a block 30 mm
+    tall across the whole height and more than half the width, cutting the plane in two, a plate 3 mm
+    tall on one piece and a shadow: the main surface is both pieces of the plane with the plate (a step
+    under the limit), not the block, though the largest surface, nor the pixels beside its edges, nor
+    the shadow. With no background (a floating block's top and a larger curved object), the largest surface."""
+    x, y = np.meshgrid((np.arange(100) - 50) / 500.0, (np.arange(80) - 40) / 500.0)
+    plane = (1200.0 / (1.0 - 0.58 * x)).astype(np.float32)
+    depth = plane.copy()
+    depth[:, 20:76] -= 30.0  # the block
+    depth[50:60, 80:95] -= 3.0  # the plate
     depth[65:75, 5:15] = np.nan  # a shadow
-    main = largest_surface(depth, 4.7)
-    assert main[50:60, 60:90].all() and main[0, 0] and main[79, 99]
-    assert not main[20:40, 19:41].any() and not main[19:41, 20:40].any() and not main[65:75, 5:15].any()
-    assert main.sum() == 80 * 100 - (22 * 22 - 4) - 100  # the block and the ring around it but its corners
-    depth[:, 70] = np.nan  # a column of shadow: two surfaces, the larger kept
-    main = largest_surface(depth, 4.7)
-    assert main[0, 0] and not main[:, 70:].any()
+    main = main_surface(depth, 4.7, (x, y))
+    assert main[:, :19].any() and main[:, 77:].any() and main[50:60, 80:95].all()
+    assert not main[:, 19:77].any() and not main[65:75, 5:15].any()
+    assert main.sum() == 80 * (19 + 23) - 100
+    floating = np.full_like(depth, np.nan)
+    floating[10:40, 10:40] = (1180.0 / (1.0 - 0.58 * x))[10:40, 10:40]  # a plane, nothing behind it: 11% of the image
+    floating[40:80, 50:100] = plane[40:80, 50:100] - 40.0 + 10.0 * x[40:80, 50:100] ** 2 * 100  # curved, larger
+    main = main_surface(floating, 4.7, (x, y))
+    assert main[50:70, 60:90].all() and not main[10:40, 10:40].any()
 
 
 @pytest.mark.parametrize("arch, convs, pools, transposes", [("aen", 23, 5, 5), ("unet", 23, 5, 5), ("fcn", 16, 5, 3)])
