@@ -105,7 +105,7 @@ def test_the_main_surface_is_the_background_with_its_pieces_and_what_joins_it():
     x, y = np.meshgrid((np.arange(100) - 50) / 500.0, (np.arange(80) - 40) / 500.0)
     plane = (1200.0 / (1.0 - 0.58 * x)).astype(np.float32)
     depth = plane.copy()
-    depth[:, 20:76] -= 30.0  # the block
+    depth[:, 20:76] = (1170.0 / (1.0 - 0.58 * x))[:, 20:76]  # the block: a plane too, with the background behind
     depth[50:60, 80:95] -= 3.0  # the plate
     depth[65:75, 5:15] = np.nan  # a shadow
     main = main_surface(depth, 4.7, (x, y))
