@@ -88,14 +88,15 @@ def main_surface(depth: np.ndarray, max_step_mm: float, rays) -> np.ndarray:
 
 def family_table(data: str, model_paths, split: str = "test", limit: int = 0) -> None:
     """Generalisation by scene family, on the split's samples (the families set's test split holds the
-    held-out families too): RMSE against the exact depth (a recorded set has none: against its
-    multi-shot label), silent errors (the share of output pixels off
-    it by more than SILENT_ERROR_MM), coverage (the share of lit pixels given a depth), the coverage of
-    the surfaces continuous with the background in the exact depth (main_surface; the largest surface
-    where the scene has no background) and, for a phase-aware model, the mean confidence in the fringe
-    order over the lit pixels that show fringes; beside them FTP on the same images where the set is
-    the composite's, and the multi-shot label. Wrong orders: the share of output pixels off by more
-    than half a fringe order (wrong_order_mm)."""
+    held-out families too): RMSE against the exact depth (a recorded set has none: against its multi-shot
+    label), silent errors (the share of output pixels off it by more than SILENT_ERROR_MM), coverage (the
+    share of lit pixels given a depth), the coverage of the surfaces continuous with the background in the
+    exact depth (main_surface; the largest surface where the scene has no background) and of the other lit
+    pixels (isolated objects, tops and gaps that steps cut off: what one image supports there, the issue
+    asks to report) and, for a phase-aware model, the mean confidence in the fringe order over the lit
+    pixels that show fringes; beside them FTP on the same images where the set is the composite's, and the
+    multi-shot label. Wrong orders: the share of output pixels off by more than half a fringe order
+    (wrong_order_mm)."""
     from .figures import load_models
 
     info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
@@ -109,13 +110,13 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     wrong_order = wrong_order_mm(calibration)
     rays = calibration.camera.rays()
     # (family, model) -> ErrorTotals against the exact depth (over 1 mm; over wrong_order; on the main
-    # surface); [confidence sum, pixels]
-    errors, orders, main, sure = {}, {}, {}, {}
+    # surface; off it); [confidence sum, pixels]
+    errors, orders, main, apart, sure = {}, {}, {}, {}, {}
     for f in split_files(data, split)[: limit or None]:
         family = sample_family(f, info.get("scene", "?"))
         image, label, truth = load_sample(f)
         reference = reference_depth(label, truth)
-        on_main = np.where(main_surface(reference, wrong_order, rays), reference, np.nan)
+        on_main = main_surface(reference, wrong_order, rays)
         for name, predict in models:
             depth, confidence = (
                 (label, None)
@@ -126,7 +127,8 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
             )
             errors.setdefault((family, name), ErrorTotals()).add(depth, reference, SILENT_ERROR_MM)
             orders.setdefault((family, name), ErrorTotals()).add(depth, reference, wrong_order)
-            main.setdefault((family, name), ErrorTotals()).add(depth, on_main)
+            main.setdefault((family, name), ErrorTotals()).add(depth, np.where(on_main, reference, np.nan))
+            apart.setdefault((family, name), ErrorTotals()).add(depth, np.where(on_main, np.nan, reference))
             if confidence is not None:
                 known = confidence[np.isfinite(confidence) & np.isfinite(reference)]
                 totals = sure.setdefault((family, name), [0.0, 0])
@@ -135,27 +137,30 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     families = sorted({f for f, _ in errors}, key=lambda f: (f in held_out, f))
     first = max([14, *(len(f) + 3 for f in families)])  # a recorded set's families are its bags' names
     print(f"{split} split of {data}, by scene family (* held out of training and validation)")
-    print(f"{'family':{first}}" + "".join(f"{n[:42]:>44}" for n in names))
-    print(f"{'':{first}}" + "".join(f"{'RMSE mm  >1mm  orders   cover   main  conf':>44}" for _ in names))
+    print(f"{'family':{first}}" + "".join(f"{n[:48]:>51}" for n in names))
+    print(f"{'':{first}}" + "".join(f"{'RMSE mm  >1mm  orders   cover   main  apart  conf':>51}" for _ in names))
     for family in families:
         cells = []
         for n in names:
             e, (conf, known) = errors[(family, n)], sure.get((family, n), (0.0, 0))
             rmse = f"{e.rmse:8.3f}" if e.compared else f"{'-':>8}"
             wrong = orders[(family, n)].share_over
+            off_main = apart[family, n]
             cells.append(
                 f"{rmse} {e.share_over:6.2%} {wrong:6.3%} {e.coverage:7.1%} {main[family, n].coverage:6.1%} "
+                + (f"{off_main.coverage:6.1%} " if off_main.reference else f"{'-':>6} ")
                 + (f"{conf / known:5.2f}" if known else f"{'-':>5}")
             )
-        print(f"{family + (' *' if family in held_out else ''):{first}}" + "".join(f"{c:>44}" for c in cells))
+        print(f"{family + (' *' if family in held_out else ''):{first}}" + "".join(f"{c:>51}" for c in cells))
     print(
         "RMSE against the exact depth (a recorded set's: the multi-shot label) over the pixels given a depth; "
         f">1mm: share of those off by more than {SILENT_ERROR_MM:g} mm (silent errors); orders: off by more than "
         f"half a fringe order ({wrong_order:.1f} mm, wrong orders); cover: share of lit pixels given a depth; "
         "main: the same of the surfaces continuous with the background (4-neighbours within "
         f"{wrong_order:.1f} mm of each other in the exact depth; the largest surface where there is no "
-        "background, a plane at least a quarter of the image with nothing behind it); conf: a phase-aware "
-        "model's mean confidence in the fringe order over the lit pixels that show fringes"
+        "background, a plane at least a quarter of the image with nothing behind it); apart: the same of the "
+        "other lit pixels (isolated objects, the tops and gaps that steps cut off, the pixels beside a step); "
+        "conf: a phase-aware model's mean confidence in the fringe order over the lit pixels that show fringes"
     )
 
 
