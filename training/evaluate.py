@@ -75,13 +75,13 @@ def main_surface(depth: np.ndarray, max_step_mm: float, rays) -> np.ndarray:
         on = labels == label
         terms = np.stack([np.ones(int(sizes[label])), x[on], y[on]], axis=1)
         a, b, c = np.linalg.lstsq(terms, 1.0 / depth[on].astype(np.float64), rcond=None)[0]
+        if np.abs(depth[on] - 1.0 / (a + b * x[on] + c * y[on])).max() > PLANE_TOLERANCE_MM:
+            continue  # not a plane
         behind = depth - 1.0 / (a + b * x + c * y)  # mm behind the plane
+        if np.nanmax(behind) > PLANE_TOLERANCE_MM:
+            continue  # something lies behind it: no background
         on_plane = (np.abs(behind) <= PLANE_TOLERANCE_MM) & (labels > 0)
-        if (
-            np.abs(behind[on]).max() <= PLANE_TOLERANCE_MM
-            and not np.nanmax(behind) > PLANE_TOLERANCE_MM
-            and np.count_nonzero(on_plane) >= MIN_BACKGROUND_SHARE * depth.size
-        ):
+        if np.count_nonzero(on_plane) >= MIN_BACKGROUND_SHARE * depth.size:
             return np.isin(labels, np.unique(labels[on_plane]))
     return (labels == sizes.argmax()) & (labels > 0)
 

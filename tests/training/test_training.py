@@ -99,10 +99,10 @@ def test_no_two_sets_share_a_scene_but_the_pattern_comparison():
 def test_the_main_surface_is_the_background_with_its_pieces_and_what_joins_it():
     """A plane tilted about 30 degrees (a plane in 3D: inverse depth linear in the rays), a block 30 mm
     tall (its top a plane too) across the whole height and more than half the width, cutting the plane
-    in two, a plate 3 mm
-    tall on one piece and a shadow: the main surface is both pieces of the plane with the plate (a step
-    under the limit), not the block, though the largest surface, nor the pixels beside its edges, nor
-    the shadow. With no background (a floating block's top and a larger curved object), the largest surface."""
+    in two, a plate 3 mm tall on one piece and a shadow: the main surface is both pieces of the plane
+    with the plate (a step under the limit), not the block, though the largest surface, nor the pixels
+    beside its edges, nor the shadow. With no background (a floating block's top and a larger curved
+    object), the largest surface."""
     x, y = np.meshgrid((np.arange(100) - 50) / 500.0, (np.arange(80) - 40) / 500.0)
     plane = (1200.0 / (1.0 - 0.58 * x)).astype(np.float32)
     depth = plane.copy()
