@@ -9,6 +9,7 @@ exact depth by more than half the depth one fringe period of the highest frequen
 
     python -m training.evaluate --data data/fpp/single runs/fcn/best.pt runs/aen/best.pt runs/unet/best.pt
     python -m training.evaluate --data data/fpp/families --families runs/phase/phase.onnx runs/surface/surface.onnx
+    python -m training.evaluate --data data/fpp/composite --refusals composite.onnx   # where the lit pixels go
 """
 
 from __future__ import annotations
@@ -23,8 +24,21 @@ import yaml
 
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.metrics import ErrorTotals
-from fpp_nodes.core.model import network_input, trusted_single_shot
-from fpp_nodes.core.reconstruct import CompositeDecoder, order_surfaces, reconstruct_ftp
+from fpp_nodes.core.model import (
+    confident,
+    decoded_fringes,
+    local_depth,
+    network_input,
+    refusal_margin,
+    trusted_single_shot,
+)
+from fpp_nodes.core.reconstruct import (
+    CompositeDecoder,
+    QualityLimits,
+    drop_flying_pixels,
+    order_surfaces,
+    reconstruct_ftp,
+)
 from fpp_nodes.core.workflow import fringe_depth_mm, wrong_order_mm
 
 from .dataset import SPLITS, load_sample, reference_depth, sample_family, split_files
@@ -164,6 +178,86 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     )
 
 
+# DepthModel.decode's steps for a composite model, in its order, each named by what it refuses
+REFUSAL_STEPS = (
+    "no fringes",  # the image shows none a network can read (decoded_fringes)
+    "no order",  # the pixel's codes name none of the working range, or another than its neighbourhood's
+    "depth step",  # beside a step of more than the flying-pixel limit
+    "roughness",  # the depth around it scatters by more than the card's limit
+    "refused surface",  # confidence 0: too small a surface, striped like the codes, beyond the range
+    "low confidence",  # below the card's threshold
+    "margin",  # beside a pixel refused where fringes show
+)
+
+
+def refusals(model, image: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Where a composite model's decoding refuses each pixel of one fringe image: for each of
+    REFUSAL_STEPS, the pixels it refuses first (masks, disjoint), and the depth given (NaN elsewhere:
+    model.infer's depth). The steps of DepthModel.decode and trusted_single_shot, replayed one by one."""
+    out = model.outputs(image)
+    fringes = decoded_fringes(image, out, model.min_modulation, model.decoder)
+    depth, confidence = model.decoder(out, 0.0, fringes, model.sidebands(image, out))
+    steps, left = {}, np.ones(image.shape, bool)
+
+    def refused_first(step, refused):
+        nonlocal left
+        steps[step], left = refused & left, left & ~refused
+
+    refused_first("no fringes", ~fringes)
+    refused_first("no order", np.isnan(depth))
+    depth[~drop_flying_pixels(depth, QualityLimits.max_depth_step_mm)] = np.nan
+    refused_first("depth step", np.isnan(depth))
+    depth, roughness = local_depth(depth)
+    depth[~(roughness <= model.max_roughness_mm)] = np.nan
+    refused_first("roughness", np.isnan(depth))
+    refused_first("refused surface", confidence == 0)
+    depth[~confident(confidence, model.min_confidence)] = np.nan
+    refused_first("low confidence", np.isnan(depth))
+    refusal_margin(depth, fringes, model.margin_px)
+    refused_first("margin", np.isnan(depth))
+    return steps, depth
+
+
+def refusal_table(data: str, model_path: str, split: str = "test", limit: int = 0) -> None:
+    """Where a composite model's decoding refuses the lit pixels, by scene family (refusals): the
+    share of the lit pixels each step refuses first, and of those of the surfaces continuous with the
+    background (main_surface), beside the share it gives a depth."""
+    from fpp_nodes.core.model import DepthModel
+
+    info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
+    calibration = Calibration.from_dict(info["calibration"])
+    model = DepthModel(model_path, calibration=calibration)
+    if not isinstance(model.decoder, CompositeDecoder):
+        raise SystemExit(f"{model_path}: refusals are a composite model's decoding steps")
+    held_out = set(info.get("held_out_families", []))
+    wrong_order, rays = wrong_order_mm(calibration), calibration.camera.rays()
+    counts = {}  # (family, region) -> pixels per step, then given
+    for f in split_files(data, split)[: limit or None]:
+        family = sample_family(f, info.get("scene", "?"))
+        image, label, truth = load_sample(f)
+        reference = reference_depth(label, truth)
+        lit = np.isfinite(reference)
+        steps, depth = refusals(model, image)
+        for region, pixels in (("lit", lit), ("main", lit & main_surface(reference, wrong_order, rays))):
+            row = [np.count_nonzero(steps[s] & pixels) for s in REFUSAL_STEPS] + [
+                np.count_nonzero(np.isfinite(depth) & pixels)
+            ]
+            counts[family, region] = counts.get((family, region), 0) + np.array(row)
+    families = sorted({f for f, _ in counts}, key=lambda f: (f in held_out, f))
+    first = max([14, *(len(f) + 8 for f in families)])
+    print(f"{split} split of {data}: where {model_path} refuses the lit pixels, by scene family (* held out)")
+    print(f"{'family':{first}}" + "".join(f"{s:>16}" for s in (*REFUSAL_STEPS, "given")))
+    for family in families:
+        for region in ("lit", "main"):
+            row = counts[family, region]
+            name = f"{family}{' *' if family in held_out else ''} {region}"
+            print(f"{name:{first}}" + "".join(f"{n / max(row.sum(), 1):16.2%}" for n in row))
+    print(
+        "each pixel counted at the first step that refuses it, in the decoding's order; lit: every lit pixel; "
+        "main: those of the surfaces continuous with the background (as the families table's main column)"
+    )
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(
         prog="python -m training.evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -176,8 +270,20 @@ def main(argv=None):
         action="store_true",
         help="the per-family table of the test split instead (checkpoints or .onnx models)",
     )
-    parser.add_argument("--split", choices=SPLITS, default="test", help="--families' split (default: test)")
+    parser.add_argument(
+        "--refusals",
+        action="store_true",
+        help="where one composite model's decoding refuses the lit pixels, by family, instead",
+    )
+    parser.add_argument(
+        "--split", choices=SPLITS, default="test", help="--families' and --refusals' split (default: test)"
+    )
     args = parser.parse_args(argv)
+    if args.refusals:
+        if len(args.checkpoints) != 1:
+            parser.error("--refusals takes one .onnx model")
+        refusal_table(args.data, args.checkpoints[0], args.split, args.limit)
+        return
     if args.families:
         family_table(args.data, args.checkpoints, args.split, args.limit)
         return

@@ -29,7 +29,7 @@ from training.dataset import (
     split_files,
     write_set,
 )
-from training.evaluate import family_table, main_surface
+from training.evaluate import REFUSAL_STEPS, family_table, main_surface, refusal_table
 from training.export import (
     CONFIDENCE_GRID,
     FLOOR_GRID,
@@ -366,6 +366,10 @@ def test_a_data_set_from_a_recorded_bag(tmp_path, capsys, near_rig, near_calibra
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("bag "))  # by recording
     rmse, off, orders, cover = (float(cell.rstrip("%")) for cell in row.split()[1:5])  # the shipped network's cells
     assert rmse < 0.2 and off < 0.5 and orders < 0.05 and cover > 90.0, row
+    refusal_table(str(tmp_path / "set"), default_model_path())  # where the rest of the lit pixels went
+    shares = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("bag lit"))
+    shares = [float(cell.rstrip("%")) for cell in shares.split()[2:]]
+    assert len(shares) == len(REFUSAL_STEPS) + 1 and abs(sum(shares) - 100) < 0.05 and abs(shares[-1] - cover) < 0.06
 
 
 def test_the_phase_aware_network_trains_exports_and_runs(tmp_path):

@@ -296,6 +296,28 @@ def single_shot_errors(model, rig, patterns, kind: str, seed: int) -> tuple[floa
     return given.sum() / capture.valid.sum(), float(np.mean(error > 1.0)), float(np.sqrt(np.mean(error**2)))
 
 
+def test_refusals_replay_the_decoding_step_by_step(rig, patterns):
+    """training.evaluate.refusals names, for each pixel the shipped network leaves NaN, the first
+    decoding step that refused it: the steps are disjoint, and with the pixels given a depth they
+    cover the image, which are exactly infer's, at its depths. A scene of objects with shadows and
+    steps has pixels refused for having no fringes and for lying beside a step."""
+    from fpp_nodes.core.model import DepthModel, default_model_path
+    from training.evaluate import REFUSAL_STEPS, refusals
+
+    model = DepthModel(default_model_path())
+    image = render(rig, make_scene(rig, "objects", 31), patterns, np.random.default_rng(31)).images[
+        patterns.single_shot_index
+    ]
+    steps, depth = refusals(model, image)
+    assert tuple(steps) == REFUSAL_STEPS
+    times_counted = sum(mask.astype(int) for mask in steps.values()) + np.isfinite(depth)
+    assert (times_counted == 1).all()
+    expected = model.infer(image)[0]
+    np.testing.assert_array_equal(np.isnan(depth), np.isnan(expected))
+    np.testing.assert_allclose(depth[np.isfinite(depth)], expected[np.isfinite(expected)], atol=1e-3)
+    assert steps["no fringes"].any() and steps["depth step"].any()
+
+
 def test_flying_pixels_are_both_sides_of_a_step_and_unknown_is_no_step():
     depth = np.full((5, 6), 1200.0, np.float32)
     depth[:, 3:] += 3.0  # a 3 mm step between columns 2 and 3
