@@ -100,6 +100,29 @@ def main_surface(depth: np.ndarray, max_step_mm: float, rays) -> np.ndarray:
     return (labels == sizes.argmax()) & (labels > 0)
 
 
+def data_set(data: str) -> tuple[dict, Calibration]:
+    """A data set folder's dataset.yaml and the calibration its samples were made with."""
+    info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
+    return info, Calibration.from_dict(info["calibration"])
+
+
+def samples(data: str, split: str, limit: int = 0):
+    """The split's samples (the first limit; 0: all), each as (family, image, label, reference depth,
+    the pixels of its main surface: main_surface)."""
+    info, calibration = data_set(data)
+    wrong_order, rays = wrong_order_mm(calibration), calibration.camera.rays()
+    for f in split_files(data, split)[: limit or None]:
+        image, label, truth = load_sample(f)
+        reference = reference_depth(label, truth)
+        yield (
+            sample_family(f, info.get("scene", "?")),
+            image,
+            label,
+            reference,
+            main_surface(reference, wrong_order, rays),
+        )
+
+
 def family_table(data: str, model_paths, split: str = "test", limit: int = 0) -> None:
     """Generalisation by scene family, on the split's samples (the families set's test split holds the
     held-out families too): RMSE against the exact depth (a recorded set has none: against its multi-shot
@@ -113,24 +136,17 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     (wrong_order_mm)."""
     from .figures import load_models
 
-    info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
-    calibration = Calibration.from_dict(info["calibration"])
+    info, calibration = data_set(data)
     models = load_models(model_paths, calibration)  # the set's rig
     if calibration.code_models:  # the classical baseline on our pattern
         decoder = CompositeDecoder(calibration)
         models.append(("FTP (composite)", lambda image: reconstruct_ftp(image, calibration, decoder=decoder).depth_mm))
     models.append(("multi-shot (the label)", None))  # what all the sequence's images measure: the reference
-    held_out = set(info.get("held_out_families", []))
     wrong_order = wrong_order_mm(calibration)
-    rays = calibration.camera.rays()
     # (family, model) -> ErrorTotals against the exact depth (over 1 mm; over wrong_order; on the main
     # surface; off it); [confidence sum, pixels]
     errors, orders, main, apart, sure = {}, {}, {}, {}, {}
-    for f in split_files(data, split)[: limit or None]:
-        family = sample_family(f, info.get("scene", "?"))
-        image, label, truth = load_sample(f)
-        reference = reference_depth(label, truth)
-        on_main = main_surface(reference, wrong_order, rays)
+    for family, image, label, reference, on_main in samples(data, split, limit):
         for name, predict in models:
             depth, confidence = (
                 (label, None)
@@ -148,7 +164,8 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
                 totals = sure.setdefault((family, name), [0.0, 0])
                 totals[0], totals[1] = totals[0] + float(known.sum()), totals[1] + known.size
     names = [n for n, _ in models]
-    families = sorted({f for f, _ in errors}, key=lambda f: (f in held_out, f))
+    held_out = set(info.get("held_out_families", []))
+    families = sorted({f for f, _ in errors}, key=lambda f: (f in held_out, f))  # the held-out last
     first = max([14, *(len(f) + 3 for f in families)])  # a recorded set's families are its bags' names
     print(f"{split} split of {data}, by scene family (* held out of training and validation)")
     print(f"{'family':{first}}" + "".join(f"{n[:48]:>51}" for n in names))
@@ -224,25 +241,20 @@ def refusal_table(data: str, model_path: str, split: str = "test", limit: int = 
     background (main_surface), beside the share it gives a depth."""
     from fpp_nodes.core.model import DepthModel
 
-    info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
-    calibration = Calibration.from_dict(info["calibration"])
+    info, calibration = data_set(data)
     model = DepthModel(model_path, calibration=calibration)
     if not isinstance(model.decoder, CompositeDecoder):
         raise SystemExit(f"{model_path}: refusals are a composite model's decoding steps")
-    held_out = set(info.get("held_out_families", []))
-    wrong_order, rays = wrong_order_mm(calibration), calibration.camera.rays()
     counts = {}  # (family, region) -> pixels per step, then given
-    for f in split_files(data, split)[: limit or None]:
-        family = sample_family(f, info.get("scene", "?"))
-        image, label, truth = load_sample(f)
-        reference = reference_depth(label, truth)
+    for family, image, _, reference, on_main in samples(data, split, limit):
         lit = np.isfinite(reference)
         steps, depth = refusals(model, image)
-        for region, pixels in (("lit", lit), ("main", lit & main_surface(reference, wrong_order, rays))):
+        for region, pixels in (("lit", lit), ("main", lit & on_main)):
             row = [np.count_nonzero(steps[s] & pixels) for s in REFUSAL_STEPS] + [
                 np.count_nonzero(np.isfinite(depth) & pixels)
             ]
             counts[family, region] = counts.get((family, region), 0) + np.array(row)
+    held_out = set(info.get("held_out_families", []))
     families = sorted({f for f, _ in counts}, key=lambda f: (f in held_out, f))
     first = max([14, *(len(f) + 8 for f in families)])
     print(f"{split} split of {data}: where {model_path} refuses the lit pixels, by scene family (* held out)")
@@ -287,7 +299,7 @@ def main(argv=None):
     if args.families:
         family_table(args.data, args.checkpoints, args.split, args.limit)
         return
-    calibration = Calibration.from_dict(yaml.safe_load((Path(args.data) / "dataset.yaml").read_text())["calibration"])
+    _, calibration = data_set(args.data)
     models = []
     for path in args.checkpoints:
         ckpt = load_checkpoint(path)
