@@ -66,8 +66,9 @@ WRONG_ORDER_BUDGET = 1e-4  # ... and off by more than half a fringe order (wrong
 CONFIDENCE_GRID = (0.0, 0.25, 0.5, 0.6, 0.7, 0.75, 0.8, 0.82, 0.84, 0.86, 0.88, 0.9, 0.92, 0.95, 0.98, 0.99, 0.999)
 FLOOR_GRID = (0.01, 0.02, 0.03, 0.05)  # the fringe mask's floor: the network's modulation, of full scale
 SURFACE_GRID = (0, 500, 2000)  # the composite decoder's smallest surface (pixels) whose vote counts
-# the composite's roughness rule (mm; inf: none). It stops at 0.5 on purpose: 0.6-0.8 fit validation's budgets
-# but 1.5-2.4x the silent errors on darker, noisier, blurrier scenes (docs/single-shot.md, the roughness grid's edge)
+# the composite's roughness rule (mm; inf: none). It stops at 0.5 on purpose: 0.6-0.8 fit validation's
+# budgets but gave 1.5-2.4x the silent errors on darker, noisier, blurrier scenes (docs/single-shot-trials.md,
+# the roughness grid's edge)
 ROUGHNESS_GRID = (0.15, 0.2, 0.25, 0.3, 0.4, 0.5, np.inf)
 MARGIN_GRID = (0, 1, 2, 3)  # pixels around a refused pixel that are refused too (model.refusal_margin)
 SIDEBAND_GRID = (0.05, 0.06, 0.07, 0.08, 0.09, 0.1, 0.12, 0.15)  # CompositeDecoder.max_sideband

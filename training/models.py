@@ -209,7 +209,7 @@ class CompositeNet(nn.Module):
     fringes, not scenes: the fringe order and the depth follow from physics
     (fpp_nodes.core.model.CompositeDecoder).
     stride: the first layer's, undone at the end by a pixel shuffle (export leaves that to DepthModel):
-    2, or 4 for a quarter of the pixels to convolve (docs/single-shot.md, a network at a quarter of
+    2, or 4 for a quarter of the pixels to convolve (docs/single-shot-trials.md, the network at a quarter of
     the resolution).
     Output (B, 2 x gratings, H, W): carrier numerator, denominator, then each code's (the composite's
     gratings: its carrier and patterns.COMPOSITE_CODES; training/compare_codes.py tries others).
