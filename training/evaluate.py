@@ -32,6 +32,7 @@ from fpp_nodes.core.model import (
     refusal_margin,
     trusted_single_shot,
 )
+from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.reconstruct import (
     CompositeDecoder,
     QualityLimits,
@@ -207,11 +208,12 @@ REFUSAL_STEPS = (
 )
 
 
-def refusals(model, image: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+def refusals(model, image: np.ndarray, out: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Where a composite model's decoding refuses each pixel of one fringe image: for each of
     REFUSAL_STEPS, the pixels it refuses first (masks, disjoint), and the depth given (NaN elsewhere:
-    model.infer's depth). The steps of DepthModel.decode and trusted_single_shot, replayed one by one."""
-    out = model.outputs(image)
+    model.infer's depth). The steps of DepthModel.decode and trusted_single_shot, replayed one by one.
+    out: the outputs to decode (default: the network's for image)."""
+    out = model.outputs(image) if out is None else out
     fringes = decoded_fringes(image, out, model.min_modulation, model.decoder)
     depth, confidence = model.decoder(out, 0.0, fringes, model.sidebands(image, out))
     steps, left = {}, np.ones(image.shape, bool)
@@ -235,10 +237,29 @@ def refusals(model, image: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarra
     return steps, depth
 
 
-def refusal_table(data: str, model_path: str, split: str = "test", limit: int = 0) -> None:
+def exact_outputs(out: np.ndarray, depth: np.ndarray, calibration: Calibration) -> np.ndarray:
+    """A composite network's outputs out with their phases replaced, at their own amplitudes, by those
+    the calibration's models give at depth (a sample's exact depth) wherever it is known: what a network
+    without phase error would output, so its decoding is depth wherever the rules keep it."""
+    u, v = calibration.camera.ideal_pixels()
+    known = np.isfinite(depth)
+    depth = np.where(known, depth, calibration.reference_depth_mm)
+    carrier, row_phase = calibration.model.phase_at_depth(depth, u, v), calibration.code_row_phases(u, v)
+    codes = [carrier / orders + row_phase(i, depth) for i, (orders, _) in enumerate(COMPOSITE_CODES)]
+    exact = out.copy()
+    for k, phase in enumerate((carrier, *codes)):
+        amplitude = np.hypot(out[2 * k], out[2 * k + 1])
+        exact[2 * k] = np.where(known, amplitude * np.sin(phase), out[2 * k])
+        exact[2 * k + 1] = np.where(known, amplitude * np.cos(phase), out[2 * k + 1])
+    return exact
+
+
+def refusal_table(data: str, model_path: str, split: str = "test", limit: int = 0, exact: bool = False) -> None:
     """Where a composite model's decoding refuses the lit pixels, by scene family (refusals): the
     share of the lit pixels each step refuses first, and of those of the surfaces continuous with the
-    background (main_surface), beside the share it gives a depth."""
+    background (main_surface), beside the share it gives a depth. exact: decode the phases of the exact
+    depth instead of the network's (exact_outputs), with the model's rules: what they refuse of a perfect
+    network's outputs, the most a better network could give through this decoding."""
     from fpp_nodes.core.model import DepthModel
 
     info, calibration = data_set(data)
@@ -248,7 +269,8 @@ def refusal_table(data: str, model_path: str, split: str = "test", limit: int = 
     counts = {}  # (family, region) -> pixels per step, then given
     for family, image, _, reference, on_main in samples(data, split, limit):
         lit = np.isfinite(reference)
-        steps, depth = refusals(model, image)
+        out = exact_outputs(model.outputs(image), reference, calibration) if exact else None
+        steps, depth = refusals(model, image, out)
         for region, pixels in (("lit", lit), ("main", lit & on_main)):
             row = [np.count_nonzero(steps[s] & pixels) for s in REFUSAL_STEPS] + [
                 np.count_nonzero(np.isfinite(depth) & pixels)
@@ -257,7 +279,8 @@ def refusal_table(data: str, model_path: str, split: str = "test", limit: int = 
     held_out = set(info.get("held_out_families", []))
     families = sorted({f for f, _ in counts}, key=lambda f: (f in held_out, f))
     first = max([14, *(len(f) + 8 for f in families)])
-    print(f"{split} split of {data}: where {model_path} refuses the lit pixels, by scene family (* held out)")
+    decoded = f"{model_path}'s rules, on the exact depth's phases," if exact else model_path
+    print(f"{split} split of {data}: where {decoded} refuses the lit pixels, by scene family (* held out)")
     print(f"{'family':{first}}" + "".join(f"{s:>16}" for s in (*REFUSAL_STEPS, "given")))
     for family in families:
         for region in ("lit", "main"):
@@ -288,13 +311,21 @@ def main(argv=None):
         help="where one composite model's decoding refuses the lit pixels, by family, instead",
     )
     parser.add_argument(
+        "--exact",
+        action="store_true",
+        help="--refusals decoding the exact depth's phases (a recorded set's: its label's) instead of the "
+        "network's, with the model's rules: what a network without phase error would get",
+    )
+    parser.add_argument(
         "--split", choices=SPLITS, default="test", help="--families' and --refusals' split (default: test)"
     )
     args = parser.parse_args(argv)
+    if args.exact and not args.refusals:
+        parser.error("--exact goes with --refusals")
     if args.refusals:
         if len(args.checkpoints) != 1:
             parser.error("--refusals takes one .onnx model")
-        refusal_table(args.data, args.checkpoints[0], args.split, args.limit)
+        refusal_table(args.data, args.checkpoints[0], args.split, args.limit, args.exact)
         return
     if args.families:
         family_table(args.data, args.checkpoints, args.split, args.limit)

@@ -15,7 +15,9 @@ import yaml
 
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.model import DepthModel, ModelError, default_model_path, pixel_shuffle
+from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.reconstruct import CompositeDecoder
+from fpp_nodes.core.scenes import make_scene
 from fpp_nodes.core.simulation import Rig
 from training.compare_codes import DESIGNS, margin, third_margin
 from training.dataset import (
@@ -29,7 +31,7 @@ from training.dataset import (
     split_files,
     write_set,
 )
-from training.evaluate import REFUSAL_STEPS, family_table, main_surface, refusal_table
+from training.evaluate import REFUSAL_STEPS, exact_outputs, family_table, main_surface, refusal_table
 from training.export import (
     CONFIDENCE_GRID,
     FLOOR_GRID,
@@ -484,6 +486,23 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     (tmp_path / "m2.yaml").write_text((tmp_path / "m2.yaml").read_text().replace(card["sha256"], "0" * 64))
     with pytest.raises(ValueError, match="does not match its card"):
         choose_again(str(tmp_path / "m2.onnx"), [str(moved)])
+
+
+def test_the_exact_depths_phases_decode_to_it(rig, calibration):
+    """evaluate --refusals --exact: the phases exact_outputs puts in a network's outputs, from a scene's
+    exact depth through the calibration, decode back to that depth (within the calibration's 0.05 mm) at
+    every lit pixel but a step's, at the network's own amplitudes; where the depth is unknown the network's
+    outputs stay."""
+    scene = make_scene(rig, "blocks", 5)
+    rng = np.random.default_rng(0)
+    out = rng.uniform(-0.3, 0.3, (2 + 2 * len(COMPOSITE_CODES), *scene.depth_mm.shape)).astype(np.float32)
+    exact = exact_outputs(out, scene.depth_mm, calibration)
+    known = np.isfinite(scene.depth_mm)
+    assert np.allclose(np.hypot(exact[0::2], exact[1::2]), np.hypot(out[0::2], out[1::2]), rtol=1e-4)
+    assert np.array_equal(exact[:, ~known], out[:, ~known])
+    depth, _ = CompositeDecoder(calibration)(exact, 0.5, known)
+    given = np.isfinite(depth)
+    assert given.sum() > 0.97 * known.sum() and np.abs(depth - scene.depth_mm)[given].max() < 0.05
 
 
 def test_the_code_comparison_measures_margins_as_the_decoder_does():
