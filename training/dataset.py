@@ -37,7 +37,6 @@ import yaml
 from tqdm import tqdm
 
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
-from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.phase import phase_sums
 from fpp_nodes.core.reconstruct import PspReconstructor, full_scale
 from fpp_nodes.core.scenes import black_print, fine_stripes, grating_texture, make_scene, pink_noise, textured
@@ -201,10 +200,7 @@ def phase_targets(images: np.ndarray, rec, calibration: Calibration) -> dict:
     if patterns.single_shot == "composite":
         u, v = calibration.camera.ideal_pixels()
         b = np.hypot(y, x) * scale
-        codes = [
-            calibration.code_row_phase_at_depth(i, rec.depth_mm, u, v) + rec.phase / orders
-            for i, (orders, _) in enumerate(COMPOSITE_CODES)
-        ]
+        codes = calibration.code_phases_at_depth(rec.depth_mm, rec.phase, u, v)
         targets["code"] = np.stack([b * f(code) for code in codes for f in (np.sin, np.cos)]).astype(np.float16)
     return targets
 

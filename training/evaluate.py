@@ -32,7 +32,6 @@ from fpp_nodes.core.model import (
     refusal_margin,
     trusted_single_shot,
 )
-from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.reconstruct import (
     CompositeDecoder,
     QualityLimits,
@@ -244,14 +243,12 @@ def exact_outputs(out: np.ndarray, depth: np.ndarray, calibration: Calibration) 
     u, v = calibration.camera.ideal_pixels()
     known = np.isfinite(depth)
     depth = np.where(known, depth, calibration.reference_depth_mm)
-    carrier, row_phase = calibration.model.phase_at_depth(depth, u, v), calibration.code_row_phases(u, v)
-    codes = [carrier / orders + row_phase(i, depth) for i, (orders, _) in enumerate(COMPOSITE_CODES)]
-    exact = out.copy()
-    for k, phase in enumerate((carrier, *codes)):
-        amplitude = np.hypot(out[2 * k], out[2 * k + 1])
-        exact[2 * k] = np.where(known, amplitude * np.sin(phase), out[2 * k])
-        exact[2 * k + 1] = np.where(known, amplitude * np.cos(phase), out[2 * k + 1])
-    return exact
+    carrier = calibration.model.phase_at_depth(depth, u, v)
+    phases = np.stack([carrier, *calibration.code_phases_at_depth(depth, carrier, u, v)])
+    amplitude = np.hypot(out[0::2], out[1::2])
+    exact = np.empty_like(out)
+    exact[0::2], exact[1::2] = amplitude * np.sin(phases), amplitude * np.cos(phases)
+    return np.where(known, exact, out)
 
 
 def refusal_table(data: str, model_path: str, split: str = "test", limit: int = 0, exact: bool = False) -> None:

@@ -322,6 +322,13 @@ class Calibration:
         carrier, codes = self.model.at(u, v), [m.at(u, v) for m in self.code_models]
         return lambda code, depth: codes[code].phase_at_depth(depth) - carrier.phase_at_depth(depth)
 
+    def code_phases_at_depth(self, depth, carrier_phase, u, v) -> list:
+        """Each code grating's phase a pixel sees at a depth, given its absolute carrier phase there: the
+        code's row phase plus the carrier's phase divided by the orders one turn of the code spans
+        (patterns.COMPOSITE_CODES). The one formula the data sets' targets, FTP and evaluate share."""
+        row = self.code_row_phases(u, v)
+        return [row(i, depth) + carrier_phase / orders for i, (orders, _) in enumerate(COMPOSITE_CODES)]
+
     def to_dict(self) -> dict:
         return {
             "format": FORMAT_NAME,

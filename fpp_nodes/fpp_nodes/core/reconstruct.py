@@ -609,10 +609,10 @@ def composite_ftp_phases(image: np.ndarray, calibration: Calibration):
     u, v = cal.camera.ideal_pixels()
     carrier = cal.model.phase_at_depth(cal.reference_depth_mm, u, v) * np.ones(image.shape)
     h, w = image.shape
-    centres = []
-    for i, (orders, _) in enumerate(COMPOSITE_CODES):
-        code = carrier / orders + cal.code_row_phase_at_depth(i, cal.reference_depth_mm, u, v)
-        centres.append((np.median(np.diff(code, axis=1)) * w / TWO_PI, np.median(np.diff(code, axis=0)) * h / TWO_PI))
+    centres = [
+        (np.median(np.diff(code, axis=1)) * w / TWO_PI, np.median(np.diff(code, axis=0)) * h / TWO_PI)
+        for code in cal.code_phases_at_depth(cal.reference_depth_mm, carrier, u, v)
+    ]
     codes = ftp_code_phases(image, centres)
     carrier, amplitude = ftp_wrapped_phase(image, True, carrier=np.median(np.diff(carrier, axis=1)) * w / TWO_PI)
     return carrier, codes, amplitude
