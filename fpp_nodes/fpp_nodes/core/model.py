@@ -180,8 +180,9 @@ class DepthModel:
             said[RANGE_WARNING] = warning
         if striped := getattr(self.decoder, "striped", 0.0):
             said["frames with surfaces striped like the pattern"] = (
-                f"{striped:.1%} of the pixels with fringes lie on surfaces striped like the pattern's code "
-                "gratings: one image cannot tell their fringe order (the multi-shot path measures them)"
+                f"{striped:.1%} of the pixels with fringes lie on surfaces whose albedo swings the fringes' "
+                "contrast at a code grating's frequency (stripes like a code's, or near it), which can move the "
+                "fringe order one image reads: given no depth (the multi-shot path measures them)"
             )
         return said
 
