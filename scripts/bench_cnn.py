@@ -3,9 +3,10 @@ on the same model in the same run (the node's overhead is the difference).
 
     source scripts/env.bash && python scripts/bench_cnn.py [--model PATH] [--seconds 20]
 
-Rows: the bare session on the network's input (640 x 480 for the default model); DepthModel (what
-the node runs on a frame: scale, pad, run the network, decode, mask untrusted pixels), both with
---threads; the node in its own process with its own defaults (the network on one core, decoding the
+Rows: the bare session on the network's input (640 x 480 for the default model), with --threads and
+with the node's threads (its network's peer: the node gives the network one core and the decoding the
+other); DepthModel (what the node runs on a frame: scale, pad, run the network, decode, mask untrusted
+pixels) with --threads; the node in its own process with its own defaults (the network on one core, decoding the
 frame before on the other), fed by this script first as fast as it takes frames (it keeps only the
 newest: its most frames/s), then as a 30 frames/s camera (does it keep up?), timed from each frame's
 stamp to its depth image arriving here; with the node process's CPU time (user and system) and page
@@ -30,6 +31,7 @@ from fpp_msgs_py import Qos, Topics, numpy_to_image, stamp_ns
 from fpp_nodes.core.model import DepthModel, default_model_path
 from fpp_nodes.core.scenes import make_scene
 from fpp_nodes.core.simulation import Rig, render
+from fpp_nodes.nodes.cnn_depth import NETWORK_THREADS
 from fpp_nodes.processes import start_process, stop_process
 
 from machine import describe
@@ -115,6 +117,9 @@ def main():
     h, w = 480 // model.downsample, 640 // model.downsample
     x = np.zeros((1, 1, h + (-h) % 32, w + (-w) % 32), np.float32)
     bare = timed(lambda: model.session.run([model.output], {"image": x}), 50)
+    node_threads = args.node_threads or NETWORK_THREADS
+    peer = DepthModel(args.model, threads=node_threads)
+    bare_node = timed(lambda: peer.session.run([peer.output], {"image": x}), 50)
     full = timed(lambda: model(image), 50)
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(args.domain))
@@ -172,6 +177,11 @@ def main():
         f"{'bare onnxruntime session (' + 'x'.join(map(str, x.shape[2:][::-1])) + ')':44} "
         f"{np.median(bare):7.1f} {np.percentile(bare, 95):7.1f} {1000 / np.median(bare):9.1f}"
     )
+    peer_row = f"bare session, the node's {node_threads} thread(s)"
+    print(
+        f"{peer_row:44} "
+        f"{np.median(bare_node):7.1f} {np.percentile(bare_node, 95):7.1f} {1000 / np.median(bare_node):9.1f}"
+    )
     print(
         f"{'DepthModel (+ decode, mask untrusted)':44} {np.median(full):7.1f} {np.percentile(full, 95):7.1f} "
         f"{1000 / np.median(full):9.1f}"
@@ -191,7 +201,8 @@ def main():
     print(
         "\nnode: stamp to depth image here; it keeps the newest frame, so frames not back were dropped, not "
         f"queued. Node latency at {CAMERA_RATE} frames/s / bare session: "
-        f"{np.median(runs[CAMERA_RATE][2]) / np.median(bare):.1f}x"
+        f"{np.median(runs[CAMERA_RATE][2]) / np.median(bare):.1f}x ({args.threads} threads), "
+        f"{np.median(runs[CAMERA_RATE][2]) / np.median(bare_node):.1f}x (the node's {node_threads})"
     )
 
 

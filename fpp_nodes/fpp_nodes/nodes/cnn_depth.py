@@ -44,6 +44,7 @@ from ..core.model import DepthModel, ModelError, default_model_path
 from .common import declare, describe, follow_calibration, load_calibration, run
 from .health import Health
 
+NETWORK_THREADS = 1  # the default: the network on one core, the decoding of the frame before on the other
 NEWEST_ONLY = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
 
 
@@ -53,7 +54,11 @@ class CnnDepth(Node):
         path = declare(self, "model", "", "ONNX model with its card beside it (empty: the shipped default)", True)
         providers = declare(self, "providers", ["CPUExecutionProvider"], "onnxruntime execution providers", True)
         threads = declare(
-            self, "threads", 1, "onnxruntime intra-op threads (the decoding of the frame before runs beside them)", True
+            self,
+            "threads",
+            NETWORK_THREADS,
+            "onnxruntime intra-op threads (the decoding of the frame before runs beside them)",
+            True,
         )
         min_confidence = declare(
             self,
