@@ -298,7 +298,10 @@ def cmd_reconstruct(args) -> None:
     out.mkdir(parents=True, exist_ok=True)
     io.write_depth(out, "depth_mm", rec.depth_mm)
     points = io.write_ply(out / "points.ply", rec.xyz_mm / 1000.0, images.mean(axis=0))
-    print(f"{args.method}: {points} points ({rec.valid.mean():.1%} of pixels) in {elapsed * 1000:.1f} ms -> {out}")
+    print(
+        f"{args.method}: {points} points ({rec.valid.mean():.1%} of pixels) in {elapsed * 1000:.1f} ms, setting up "
+        f"included (the path alone: make bench, make bench-cnn) -> {out}"
+    )
     truth = _truth_beside(args.images, args.truth)
     if truth is not None and truth.shape != rec.depth_mm.shape:
         raise io.InputError(
