@@ -173,19 +173,12 @@ def main():
         f"{model.card.get('parameters')} parameters), 640x480 mono8 frames\n"
     )
     print(f"{'':44} {'ms p50':>7} {'ms p95':>7} {'frames/s':>9}")
-    print(
-        f"{'bare onnxruntime session (' + 'x'.join(map(str, x.shape[2:][::-1])) + ')':44} "
-        f"{np.median(bare):7.1f} {np.percentile(bare, 95):7.1f} {1000 / np.median(bare):9.1f}"
-    )
-    peer_row = f"bare session, the node's {node_threads} thread(s)"
-    print(
-        f"{peer_row:44} "
-        f"{np.median(bare_node):7.1f} {np.percentile(bare_node, 95):7.1f} {1000 / np.median(bare_node):9.1f}"
-    )
-    print(
-        f"{'DepthModel (+ decode, mask untrusted)':44} {np.median(full):7.1f} {np.percentile(full, 95):7.1f} "
-        f"{1000 / np.median(full):9.1f}"
-    )
+    for label, ms in (
+        (f"bare onnxruntime session ({'x'.join(map(str, x.shape[2:][::-1]))})", bare),
+        (f"bare session, the node's {node_threads} thread(s)", bare_node),
+        ("DepthModel (+ decode, mask untrusted)", full),
+    ):
+        print(f"{label:44} {np.median(ms):7.1f} {np.percentile(ms, 95):7.1f} {1000 / np.median(ms):9.1f}")
     for rate, (sent, elapsed, lat, _) in runs.items():
         fed = f"{rate} frames/s camera" if rate else "frames as fast as it takes"
         print(
