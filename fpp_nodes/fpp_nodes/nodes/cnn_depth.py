@@ -20,10 +20,11 @@ model stops the node at start. Parameters: model (path; empty = the shipped defa
 (negative: the model card's), calibration (the rig's: a composite model's phases become depth
 through it, whatever rig trained the network; intrinsics for the cloud).
 
-Two frames are in hand at once: the network runs on a frame in the subscription's callback while a
-thread of the node's own decodes the frame before and publishes it, so on 2 cores the network takes
-one (threads 1, the default) and the decoding the other (docs/single-shot.md, the node's speed); the
-first of the two to be done takes the image's code sidebands.
+Up to three frames are in hand at once: the network runs on a frame in the subscription's callback
+while a thread of the node's own decodes an earlier one and publishes it, with at most one more
+between them, so on 2 cores the network takes one (threads 1, the default) and the decoding the other
+(docs/single-shot.md, the node's speed), and neither waits on the other's slower frames; the network's
+thread takes a frame's code sidebands when it would otherwise wait, the decoding thread otherwise.
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ from ..core.model import DepthModel, ModelError, default_model_path
 from .common import declare, describe, follow_calibration, load_calibration, run
 from .health import Health
 
-NETWORK_THREADS = 1  # the default: the network on one core, the decoding of the frame before on the other
+NETWORK_THREADS = 1  # the default: the network on one core, the decoding of earlier frames on the other
 NEWEST_ONLY = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
 
 
@@ -57,7 +58,7 @@ class CnnDepth(Node):
             self,
             "threads",
             NETWORK_THREADS,
-            "onnxruntime intra-op threads (the decoding of the frame before runs beside them)",
+            "onnxruntime intra-op threads (the decoding of earlier frames runs beside them)",
             True,
         )
         min_confidence = declare(
@@ -78,9 +79,10 @@ class CnnDepth(Node):
         self.model = DepthModel(path, providers, threads, calibration)
         if min_confidence >= 0 and self.model.decoder is not None:
             self.model.min_confidence = min_confidence
-        # the network's outputs to the decoding thread, once it is done with the frame before: meanwhile
-        # the next frame waits in the subscription, which keeps only the newest
-        self.decoding = queue.Queue()
+        # the network's outputs to the decoding thread: one frame may wait there while it decodes another,
+        # so that neither thread waits on the other's slower frames; the next waits in the subscription,
+        # which keeps only the newest
+        self.decoding = queue.Queue(maxsize=1)
         self._use(calibration, source)
         follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
         cam = self.calibration.camera
@@ -129,10 +131,9 @@ class CnnDepth(Node):
         except (ImageError, ModelError) as e:
             self.health.report("frames rejected", f"image rejected: {e}")
             return
-        # while the decoding thread is still busy with the frame before, this one would only wait: it
-        # takes the image's code sidebands meanwhile
-        sidebands = self.model.sidebands(image, out) if self.decoding.unfinished_tasks else None
-        self.decoding.join()  # the frame before is published
+        # where a frame already waits for the decoding thread, this one would only wait: it takes the
+        # image's code sidebands meanwhile
+        sidebands = self.model.sidebands(image, out) if self.decoding.full() else None
         self.decoding.put((msg.header, image, out, sidebands, want, start))
 
     def _decode_frames(self):
