@@ -81,7 +81,6 @@ def main_surface(depth: np.ndarray, max_step_mm: float, rays) -> np.ndarray:
     surfaces continuous with the background. rays: the camera's x/z and y/z per pixel (a plane's
     inverse depth is linear in them)."""
     labels, sizes = order_surfaces(depth, np.isfinite(depth), max_step_mm)
-    sizes[0] = 0  # off every surface
     x, y = (np.broadcast_to(r, depth.shape) for r in rays)
     for label in np.argsort(sizes)[::-1][:8]:  # the background, or a piece of it, is among the largest
         if sizes[label] < 0.01 * depth.size:

@@ -2,7 +2,9 @@
 once, row by row, keeping every intermediate in row buffers that stay in the CPU's first-level cache;
 trusted_points turns the phase into depth, noise, the trusted pixels and XYZ. Separate numpy or OpenCV
 calls each pass over the whole 640x480 frame, about a hundred passes for a 16-image sequence. The
-science is phase.py's and reconstruct.py's, which tests compare these passes against.
+science is phase.py's and reconstruct.py's, which tests compare these passes against. The single-shot
+decoding's per-pixel chains likewise (code_phase and those after it; its neighbourhood sums and
+medians stay OpenCV's).
 
 The passes hold no Python objects and release the interpreter lock (nogil), so row bands run on
 threads of their own (reconstruct.PspReconstructor): no threading layer of numba's, nothing that a
@@ -387,3 +389,84 @@ def sideband_ratio(sums, area):
 def _length(x, y):
     """|x + i y| (a square root vectorizes, libm's hypot does not)."""
     return np.sqrt(x * x + y * y)
+
+
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+def nearest_order(carrier, steps, base, step):
+    """carrier + 2 pi k nearest the phase that median_16's steps stand for (base + steps x step), per
+    pixel: the order a neighbourhood's median phase names."""
+    out = np.empty(carrier.shape, np.float32)
+    base, step = np.float32(base), np.float32(step)
+    for r in range(carrier.shape[0]):
+        for c in range(carrier.shape[1]):
+            phase = carrier[r, c]
+            median = base + np.float32(steps[r, c]) * step
+            out[r, c] = phase + _TWO_PI * np.float32(np.rint((median - phase) * _INV_TWO_PI))
+    return out
+
+
+@numba.njit(nogil=True, error_model="numpy", cache=True)
+def label_counts(labels, count, marked):
+    """The pixels marked (a mask) of each label 0 .. count - 1 (cv2.connectedComponents' labels)."""
+    counts = np.zeros(count, np.int64)
+    for r in range(labels.shape[0]):
+        for c in range(labels.shape[1]):
+            if marked[r, c]:
+                counts[labels[r, c]] += 1
+    return counts
+
+
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+def window_mean_residuals(depth, sums, counts):
+    """model.local_depth's middle: each pixel's window mean (its window's depth sum over its count of
+    known pixels, at least 1) and the square of its depth's difference from it (0 where unknown)."""
+    mean = np.empty(depth.shape, np.float32)
+    squares = np.empty(depth.shape, np.float32)
+    for r in range(depth.shape[0]):
+        for c in range(depth.shape[1]):
+            m = sums[r, c] / max(counts[r, c], np.float32(1))
+            mean[r, c] = m
+            z = depth[r, c]
+            e = z - m if np.isfinite(z) else np.float32(0)
+            squares[r, c] = e * e
+    return mean, squares
+
+
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+def window_roughness(depth, mean, square_sums, counts):
+    """model.local_depth's end: the RMS of the window's squared differences (square_sums over its count
+    of known pixels), and NaN in it and in mean (in place) where depth is unknown."""
+    roughness = np.empty(depth.shape, np.float32)
+    nan = np.float32(np.nan)
+    for r in range(depth.shape[0]):
+        for c in range(depth.shape[1]):
+            known = np.isfinite(depth[r, c])
+            rms = np.sqrt(max(square_sums[r, c] / max(counts[r, c], np.float32(1)), np.float32(0)))
+            roughness[r, c] = rms if known else nan
+            mean[r, c] = mean[r, c] if known else nan
+    return roughness
+
+
+@numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
+def _steady(z, a, b, c, d, step):
+    """z is finite and none of its neighbours a to d is more than step away (NaN: no step)."""
+    jump = (abs(z - a) > step) | (abs(z - b) > step) | (abs(z - c) > step) | (abs(z - d) > step)
+    return np.isfinite(z) & ~jump
+
+
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+def steady_pixels(depth, max_step):
+    """reconstruct.drop_flying_pixels: the finite pixels no finite 4-neighbour of which is more than
+    max_step away (float32 comparisons; a NaN neighbour is no step, inf: no rule). A missing
+    neighbour at the border is the pixel itself; the inner columns in a loop of their own, so that
+    it vectorizes."""
+    height, width = depth.shape
+    step = np.float32(max_step)
+    steady = np.empty((height, width), np.bool_)
+    for r in range(height):
+        up, row, down, out = depth[max(r - 1, 0)], depth[r], depth[min(r + 1, height - 1)], steady[r]
+        for c in range(1, width - 1):
+            out[c] = _steady(row[c], up[c], down[c], row[c - 1], row[c + 1], step)
+        for c in (0, width - 1):
+            out[c] = _steady(row[c], up[c], down[c], row[max(c - 1, 0)], row[min(c + 1, width - 1)], step)
+    return steady

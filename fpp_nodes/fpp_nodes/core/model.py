@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import yaml
 
+from . import fused
 from .calibration import Calibration
 from .patterns import CARRIER_AMPLITUDE, COMPOSITE_CODES, PatternError, PatternSet
 from .phase import PhaseError
@@ -371,18 +372,10 @@ def local_depth(depth: np.ndarray, window: int = ROUGHNESS_WINDOW) -> tuple[np.n
     def window_sum(image, ddepth=-1):
         return cv2.boxFilter(image, ddepth, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
 
-    mask = known.view(np.uint8)
-    offset = np.float32(cv2.mean(depth, mask)[0])  # box sums of small numbers keep float32's precision
-    values = cv2.patchNaNs(depth - offset, 0)  # no weight in the sums
-    per_pixel = np.float32(1) / np.maximum(window_sum(mask, cv2.CV_32F), 1)
-    mean = window_sum(values) * per_pixel
-    residual = cv2.subtract(values, mean)
-    residual[~known] = 0
-    squares = window_sum(cv2.multiply(residual, residual))
-    roughness = np.sqrt(np.maximum(squares * per_pixel, 0))  # a box sum can dip below 0
-    mean += offset
-    mean[~known] = np.nan
-    roughness[~known] = np.nan
+    counts = window_sum(known.view(np.uint8), cv2.CV_32F)
+    # OpenCV sums a float window in double precision: depths in mm keep float32's precision
+    mean, squares = fused.window_mean_residuals(depth, window_sum(cv2.patchNaNs(depth.copy(), 0)), counts)
+    roughness = fused.window_roughness(depth, mean, window_sum(squares), counts)
     return mean, roughness
 
 

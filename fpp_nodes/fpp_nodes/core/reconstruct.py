@@ -64,17 +64,9 @@ class QualityLimits:
 
 
 def drop_flying_pixels(depth: np.ndarray, max_step: float) -> np.ndarray:
-    """Mask of pixels whose depth is within max_step of all finite 4-neighbours."""
-    depth = np.asarray(depth, np.float32)
-    # numpy compares: cv2.compare on float32 took 10 ms a frame with OpenCV 4.13 on an AVX2 CPU (make bench)
-    jump_x = np.greater(cv2.absdiff(depth[:, 1:], depth[:, :-1]), max_step)  # NaN: no jump
-    jump_y = np.greater(cv2.absdiff(depth[1:], depth[:-1]), max_step)
-    steady = np.isfinite(depth)
-    steady[:, 1:] &= ~jump_x
-    steady[:, :-1] &= ~jump_x
-    steady[1:] &= ~jump_y
-    steady[:-1] &= ~jump_y
-    return steady
+    """Mask of the finite pixels whose depth is within max_step of all finite 4-neighbours (one
+    compiled pass, fused.steady_pixels)."""
+    return fused.steady_pixels(np.asarray(depth, np.float32), max_step)
 
 
 def multi_frequency_phase(
@@ -235,11 +227,16 @@ def steps_16(low: np.ndarray, high: np.ndarray, spare: float) -> tuple[float, fl
     return base, (float(high.max()) + spare - base) / 65535
 
 
-def median_16(phase: np.ndarray, base: float, step: float) -> np.ndarray:
-    """cv2.medianBlur(phase, 5) within step / 2, phase quantized as (phase - base) / step into 16 bits:
-    quantizing keeps the phases' order, so the median of the steps is the median's step."""
+def median_16_steps(phase: np.ndarray, base: float, step: float) -> np.ndarray:
+    """cv2.medianBlur(phase, 5) as 16-bit steps, phase quantized as (phase - base) / step: quantizing
+    keeps the phases' order, so the median of the steps is the median's step (base + steps x step)."""
     steps = cv2.addWeighted(phase, 1 / step, phase, 0, -base / step, dtype=cv2.CV_16U)
-    steps = cv2.medianBlur(steps, 5)
+    return cv2.medianBlur(steps, 5)
+
+
+def median_16(phase: np.ndarray, base: float, step: float) -> np.ndarray:
+    """cv2.medianBlur(phase, 5) within step / 2 (median_16_steps)."""
+    steps = median_16_steps(phase, base, step)
     return cv2.addWeighted(steps, step, steps, 0, base, dtype=cv2.CV_32F)
 
 
@@ -358,8 +355,11 @@ class CompositeDecoder:
         first, last = (self.lowest + self.turn * t for t in (self.outside_turns[0], self.outside_turns[-1] + 1))
         self.outside_steps = steps_16(np.minimum(first, last), np.maximum(first, last), 4 * TWO_PI)
 
-    def median(self, phase: np.ndarray) -> np.ndarray:
-        return median_16(phase, *self.median_steps)
+    def nearest_median(self, carrier: np.ndarray, phase: np.ndarray) -> np.ndarray:
+        """The absolute phase of each pixel's order nearest the 5 x 5 median of phase around it
+        (median_16's steps, turned into phase in the same pass)."""
+        base, step = self.median_steps
+        return fused.nearest_order(carrier, median_16_steps(phase, base, step), base, step)
 
     @staticmethod
     def _rows(calibration: Calibration, u, v):
@@ -468,7 +468,6 @@ class CompositeDecoder:
         """out: (2 + 2 x codes, H, W) the carrier's numerator and denominator, then each code's; fringes:
         the pixels that show fringes (default all); sidebands: code_sidebands of the fringe image out
         was read from (without them, no stripes rule). Returns (depth mm, confidence), NaN where unknown."""
-        two_pi = np.float32(2 * np.pi)
         carrier, *codes = (
             cv2.phase(np.ascontiguousarray(den, np.float32), np.ascontiguousarray(num, np.float32))
             for num, den in zip(out[0::2], out[1::2])
@@ -481,7 +480,7 @@ class CompositeDecoder:
         self.outside_range = (shown - np.count_nonzero(ordered)) / max(shown, 1)
         local = np.where(ordered, own, np.float32(0))
         for _ in range(2):  # the order nearest the neighbourhood's median phase
-            local = carrier + two_pi * np.rint((self.median(local) - carrier) / two_pi)
+            local = self.nearest_median(carrier, local)
         agree = (np.abs(own - local) < np.pi) & ordered
         vote = cv2.boxFilter(agree.astype(np.float32), -1, (VOTE_WINDOW, VOTE_WINDOW), borderType=cv2.BORDER_REPLICATE)
         # codes too noisy to name any order (not a contradicting one): the neighbourhood's, inside the range
@@ -495,7 +494,7 @@ class CompositeDecoder:
         np.put(own, adopted, local.ravel()[adopted])
         np.put(ordered, adopted, True)
         surface, size = order_surfaces(local, ordered)
-        agreeing = np.bincount((surface * agree).ravel(), minlength=size.size)  # disagreeing: label 0
+        agreeing = fused.label_counts(surface, size.size, agree)
         np.put(agree, adopted, True)  # kept, after the votes
         share = (agreeing / np.maximum(size, 1)).astype(np.float32)
         share[0] = 0  # label 0: beside a step, on no surface
@@ -557,10 +556,11 @@ def order_surfaces(absolute: np.ndarray, fringes: np.ndarray, max_step: float = 
     fringes joined through their 4 neighbours where the absolute phase changes by less than pi (Itoh's
     condition, which a continuous surface meets: the orders step as the wrapped phase does). A pixel
     beside a change of more (a depth step, or an order that disagrees with its neighbour's) is on
-    none: label 0. max_step: the same for another map (a depth map: half an order's depth)."""
+    none: label 0, counted as no pixels. max_step: the same for another map (a depth map: half an
+    order's depth)."""
     inside = fringes & drop_flying_pixels(absolute, max_step)
     count, labels = cv2.connectedComponents(inside.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
-    return labels, np.bincount(labels.ravel(), minlength=count)
+    return labels, fused.label_counts(labels, count, inside)
 
 
 # The sidebands are summed over blocks of SIDEBAND_BLOCK pixels (16x fewer to window) and windowed there by a

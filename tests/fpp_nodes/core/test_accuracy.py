@@ -328,3 +328,4 @@ def test_flying_pixels_are_both_sides_of_a_step_and_unknown_is_no_step():
     assert not kept[0, 0]  # no depth, nothing to keep
     assert kept[:, [0, 1, 4, 5]][1:].all() and kept[0, 1]  # a NaN neighbour is no jump
     assert drop_flying_pixels(depth, 3.0)[:, 2:4].all()  # a step of exactly max_step stays
+    assert (drop_flying_pixels(depth, np.inf) == np.isfinite(depth)).all()  # no rule

@@ -366,6 +366,26 @@ def test_local_depth_is_the_neighbourhood_mean_and_scatter():
     assert all(np.isnan(a).all() for a in local_depth(np.full((20, 20), np.nan, np.float32)))
 
 
+def test_local_depth_is_its_definition_pixel_by_pixel():
+    """Against the definition, one pixel at a time: over the 9 x 9 window (inside the image) the mean
+    of the known depths, and the RMS of each known depth's difference from its own window's mean."""
+    rng = np.random.default_rng(3)
+    depth = (1200 + rng.normal(0, 2, (20, 26))).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.2] = np.nan
+    mean, rough = local_depth(depth)
+    h, w = depth.shape
+
+    def window(a, r, c):
+        return a[max(r - 4, 0) : r + 5, max(c - 4, 0) : c + 5]
+
+    own_mean = np.array([[np.nanmean(window(depth, r, c)) for c in range(w)] for r in range(h)])
+    for r, c in zip(*np.nonzero(np.isfinite(depth))):
+        residual = window(depth, r, c) - window(own_mean, r, c)
+        assert mean[r, c] == pytest.approx(own_mean[r, c], abs=1e-3)
+        assert rough[r, c] == pytest.approx(np.sqrt(np.nanmean(residual**2)), abs=1e-3)
+    assert np.isnan(mean[np.isnan(depth)]).all() and np.isnan(rough[np.isnan(depth)]).all()
+
+
 def test_the_refusal_margin_spreads_from_refused_pixels_not_from_shadows():
     """A pixel within the margin (a square) of one that shows fringes but has no depth has none; beside
     a shadow (no fringes) depth stays; no margin, nothing changes."""
