@@ -4,7 +4,8 @@ network (ONNX, run with onnxruntime).
 Subscribes camera/image_raw (mono8/mono16: the single-shot frame the model was trained on, its
 card's pattern set: the composite by default, the paper's first image of the highest frequency for
 the paper's networks; a calibration whose pattern set differs stops the node at start), keeping only
-the newest frame (KEEP_LAST 1): under load older frames are dropped, never queued. Publishes
+the newest frame (KEEP_LAST 1): under load older frames are dropped, never queued beyond the one
+that may wait for the decoding (below). Publishes
 depth/image (32FC1, metres, NaN where the image shows no usable fringes: shadows, dark or saturated
 areas), depth/camera_info and points (organized PointCloud2, metres), with the image's header, and
 its health on /diagnostics (for the composite model also the share of the pixels with fringes whose
