@@ -6,10 +6,10 @@ on the same model in the same run (the node's overhead is the difference).
 Rows: the bare session on the network's input (640 x 480 for the default model), with --threads and
 with the node's threads (its network's peer: the node gives the network one core and the decoding the
 other); DepthModel (what the node runs on a frame: scale, pad, run the network, decode, mask untrusted
-pixels) with --threads; the node in its own process with its own defaults (the network on one core, decoding the
-earlier frames on the other), fed by this script first as fast as it takes frames (it keeps only the
-newest: its most frames/s), then as a 30 frames/s camera (does it keep up?), timed from each frame's
-stamp to its depth image arriving here; with the node process's CPU time (user and system) and page
+pixels) with --threads; the node in its own process with its own defaults (the network on one core,
+decoding earlier frames on the other), fed by this script first as fast as it takes frames (it keeps
+only the newest: its most frames/s), then as a 30 frames/s camera (does it keep up?), timed from each
+frame's stamp to its depth image arriving here; with the node process's CPU time (user and system) and page
 faults per frame back, and its resident memory at the end, from /proc (Linux).
 """
 

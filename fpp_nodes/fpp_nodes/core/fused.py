@@ -158,14 +158,19 @@ def trusted_points(phase, phase_noise, trusted, lo, first, last, terms, slope, r
 
 
 @numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
+def _jump(z, a, b, c, d, step):
+    """Some of z's 4 neighbours a to d is more than step away. Comparisons with NaN are false, so a
+    NaN neighbour is no step."""
+    return (abs(z - a) > step) | (abs(z - b) > step) | (abs(z - c) > step) | (abs(z - d) > step)
+
+
+@numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
 def _kept(z, a, b, c, d, max_step):
     """z where its 4 neighbours a to d are all finite (max_step inf: the erosion) or none that is
-    finite is more than max_step away (the flying pixels); NaN otherwise. Comparisons with NaN are
-    false, so a NaN neighbour is no step."""
+    finite is more than max_step away (the flying pixels); NaN otherwise."""
     if max_step == np.inf:
         return z if np.isfinite(a + b + c + d) else np.nan
-    step = (abs(z - a) > max_step) | (abs(z - b) > max_step) | (abs(z - c) > max_step) | (abs(z - d) > max_step)
-    return np.nan if step else z
+    return np.nan if _jump(z, a, b, c, d, max_step) else z
 
 
 @numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
@@ -449,9 +454,8 @@ def window_roughness(depth, mean, square_sums, counts):
 
 @numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
 def _steady(z, a, b, c, d, step):
-    """z is finite and none of its neighbours a to d is more than step away (NaN: no step)."""
-    jump = (abs(z - a) > step) | (abs(z - b) > step) | (abs(z - c) > step) | (abs(z - d) > step)
-    return np.isfinite(z) & ~jump
+    """z is finite and none of its neighbours a to d is more than step away (_jump)."""
+    return np.isfinite(z) & ~_jump(z, a, b, c, d, step)
 
 
 @numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
