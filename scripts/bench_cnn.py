@@ -10,7 +10,8 @@ pixels) with --threads; the node in its own process with its own defaults (the n
 decoding earlier frames on the other), fed by this script first as fast as it takes frames (it keeps
 only the newest: its most frames/s), then as a 30 frames/s camera (does it keep up?), timed from each
 frame's stamp to its depth image arriving here; with the node process's CPU time (user and system) and page
-faults per frame back, and its resident memory at the end, from /proc (Linux).
+faults per frame back, and its resident memory at the end, from /proc (Linux), and this script's own CPU time
+per frame back (its publisher and subscriber share the two cores with the node).
 """
 
 from __future__ import annotations
@@ -57,10 +58,15 @@ def process_tree(pid: int) -> list[Path]:
     while todo:
         proc = Path(f"/proc/{todo.pop()}")
         try:
-            todo += [int(c) for task in (proc / "task").iterdir() for c in (task / "children").read_text().split()]
-        except (OSError, ValueError):
+            tasks = list((proc / "task").iterdir())
+        except OSError:  # gone
             continue
         procs.append(proc)
+        for task in tasks:
+            try:
+                todo += [int(c) for c in (task / "children").read_text().split()]
+            except OSError:  # a thread that ended meanwhile: the process stays in the tree
+                continue
     return procs
 
 
@@ -151,8 +157,10 @@ def main():
         time.sleep(1.0)
         runs = {}
         for rate in (0, CAMERA_RATE):
-            before = process_times(node_proc.pid)
-            runs[rate] = (*feed(robot, pub, image, args.seconds, rate, arrivals), process_times(node_proc.pid) - before)
+            before, own = process_times(node_proc.pid), os.times()  # the node is this script's child: not in own
+            sent_back = feed(robot, pub, image, args.seconds, rate, arrivals)
+            own = sum(os.times()[:2]) - sum(own[:2])
+            runs[rate] = (*sent_back, process_times(node_proc.pid) - before, own)
         resident = resident_mb(node_proc.pid)
     finally:
         stop_process(node_proc, timeout=15)
@@ -179,17 +187,20 @@ def main():
         ("DepthModel (+ decode, mask untrusted)", full),
     ):
         print(f"{label:44} {np.median(ms):7.1f} {np.percentile(ms, 95):7.1f} {1000 / np.median(ms):9.1f}")
-    for rate, (sent, elapsed, lat, _) in runs.items():
+    for rate, (sent, elapsed, lat, *_) in runs.items():
         fed = f"{rate} frames/s camera" if rate else "frames as fast as it takes"
         print(
             f"{'cnn_depth node, ' + fed:44} {np.median(lat):7.1f} {np.percentile(lat, 95):7.1f} "
             f"{len(lat) / elapsed:9.1f}   sent {sent}, back {len(lat)}"
         )
-    print("\nnode process, a frame back:       user ms  system ms  page faults")
-    for rate, (_, _, lat, (user, system, faults)) in runs.items():
+    print("\nCPU a frame back, ms:             node user  node system  page faults  this script (user+system)")
+    for rate, (_, _, lat, (user, system, faults), own) in runs.items():
         frames = max(len(lat), 1)
         fed = f"{rate} frames/s camera" if rate else "as fast as it takes"
-        print(f"{fed:32} {1000 * user / frames:8.1f} {1000 * system / frames:10.1f} {faults / frames:12.0f}")
+        print(
+            f"{fed:32} {1000 * user / frames:10.1f} {1000 * system / frames:12.1f} {faults / frames:12.0f}"
+            f" {1000 * own / frames:26.1f}"
+        )
     print(f"node process resident memory at the end: {resident:.0f} MB")
     print(
         "\nnode: stamp to depth image here; it keeps the newest frame, so frames not back were dropped, not "
