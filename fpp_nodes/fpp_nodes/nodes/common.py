@@ -8,6 +8,7 @@ import sys
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
@@ -25,9 +26,29 @@ MESSAGE_TYPES = {
 
 
 def declare(node: Node, name: str, default, description: str, read_only: bool = False):
-    """Declare a parameter with its description and return its value."""
-    node.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=read_only))
-    return node.get_parameter(name).value
+    """Declare a parameter with its description and return its value. A parameter of floats also takes
+    whole numbers (rate:=60, distortion:=[0,0,0,0,0], as users write them, which rclpy's typing by the
+    default refuses with a traceback), returned as floats; anything else there is a ValueError."""
+    floats = isinstance(default, float) or (
+        isinstance(default, list) and default and all(isinstance(x, float) for x in default)
+    )
+    descriptor = ParameterDescriptor(description=description, read_only=read_only, dynamic_typing=floats)
+    node.declare_parameter(name, default, descriptor)
+    value = node.get_parameter(name).value
+    if not floats:
+        return value
+    if isinstance(default, list):
+        if not isinstance(value, (list, tuple)):
+            raise ValueError(f"{name} must be a list of numbers, got {value!r}")
+        return [number(name, x) for x in value]
+    return number(name, value)
+
+
+def number(name: str, value) -> float:
+    """A float parameter's value: a whole number too, never a bool or a string."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    return float(value)
 
 
 def load_calibration(node: Node) -> tuple[Calibration, str]:
@@ -91,7 +112,7 @@ def on_set(node: Node, checks: dict):
 
 
 def check_positive(name: str, value) -> None:
-    if not (isinstance(value, (int, float)) and value > 0):
+    if not number(name, value) > 0:
         raise ValueError(f"{name} must be > 0, got {value!r}")
 
 
@@ -141,12 +162,16 @@ def run(*node_factories, args=None) -> None:
     """main() of an executable: make the nodes (classes or functions returning a node), spin, shut
     down cleanly; a bad configuration is one error line and exit status 2, not a traceback."""
     reuse_freed_buffers()
-    rclpy.init(args=args)
+    try:
+        rclpy.init(args=args)
+    except RuntimeError as e:  # rcl's: arguments it cannot parse (a list of mixed types, say)
+        print(f"[FATAL] {e}", file=sys.stderr)
+        sys.exit(2)
     nodes = []
     try:
         for make in node_factories:
             nodes.append(make())
-    except (ValueError, OSError) as e:
+    except (ValueError, OSError, ParameterException) as e:  # ParameterException: a value of the wrong type
         print(f"[FATAL] {e}", file=sys.stderr)
         for n in nodes:
             n.destroy_node()

@@ -264,6 +264,9 @@ def test_a_slow_subscriber_does_not_hold_back_a_fast_one(ros_graph):
     [
         (("-p", "frequencies:=[1, 20, 4]"), "increasing"),
         (("-p", "rate:=-30.0"), "rate must be > 0"),
+        (("-p", "rate:=fast"), "rate must be a number"),
+        (("-p", "steps:=four"), "expecting type 'INTEGER'"),  # rclpy's own message
+        (("-p", "frequencies:=[1, 4.5, 100]"), "Sequence should be of same type"),  # rcl's, before the node
     ],
 )
 def test_out_of_range_parameters_at_start_are_one_fatal_line(ros_graph, args, message):
@@ -271,6 +274,18 @@ def test_out_of_range_parameters_at_start_are_one_fatal_line(ros_graph, args, me
     proc = procs.start("pattern_projector", *args)
     assert proc.wait(timeout=30) == 2
     assert message in procs.logs() and "Traceback" not in procs.logs()
+
+
+def test_whole_numbers_for_float_parameters_at_start(ros_graph):
+    """rate:=60 and distortion:=[0, 0, 0, 0, 0], as users write them: rclpy types a parameter by its
+    default (a float) and would refuse them."""
+    procs, robot = ros_graph
+    frames = collect(robot, Topics.CAMERA_IMAGE, Image, Qos.FRAMES)
+    camera = procs.start("fringe_camera_sim", "-p", "distortion:=[0, 0, 0, 0, 0]")
+    projector = procs.start("pattern_projector", "-p", "rate:=60")
+    assert robot.spin_until(lambda: len(frames) >= 20, 60), procs.logs()
+    assert camera.poll() is None and projector.poll() is None
+    assert "17 patterns at 60 Hz" in procs.logs("pattern_projector") and "Traceback" not in procs.logs()
 
 
 def test_out_of_range_parameters_at_runtime_are_refused_with_the_reason(ros_graph):
@@ -290,8 +305,11 @@ def test_out_of_range_parameters_at_runtime_are_refused_with_the_reason(ros_grap
 
     refused = set_value("rate", ParameterType.PARAMETER_DOUBLE, double_value=-5.0)
     assert not refused.successful and "rate must be > 0" in refused.reason
+    refused = set_value("rate", ParameterType.PARAMETER_STRING, string_value="fast")
+    assert not refused.successful and "rate must be a number" in refused.reason
     refused = set_value("steps", ParameterType.PARAMETER_INTEGER, integer_value=2)
     assert not refused.successful and "read-only" in refused.reason
+    assert set_value("rate", ParameterType.PARAMETER_INTEGER, integer_value=45).successful  # a whole number
     assert set_value("rate", ParameterType.PARAMETER_DOUBLE, double_value=60.0).successful
     shown = collect(robot, Topics.PATTERN, Image, Qos.FRAMES)
     assert robot.spin_until(lambda: len(shown) >= 20, 60) and projector.poll() is None
