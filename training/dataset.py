@@ -341,6 +341,14 @@ def write_bag_set(
     return count
 
 
+def read_info(folder) -> dict:
+    """A data set's dataset.yaml: what made it (set, counts, seeds, rig, pattern set, calibration)."""
+    path = Path(folder) / "dataset.yaml"
+    if not path.is_file():
+        raise ValueError(f"{folder} holds no data set (no dataset.yaml): make one with python -m training.dataset")
+    return yaml.safe_load(path.read_text())
+
+
 def split_files(folder, split: str) -> list[Path]:
     return sorted((Path(folder) / split).glob("*.npz"))
 

@@ -15,12 +15,10 @@ exact depth by more than half the depth one fringe period of the highest frequen
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
-import yaml
 
 from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.metrics import ErrorTotals
@@ -41,7 +39,7 @@ from fpp_nodes.core.reconstruct import (
 )
 from fpp_nodes.core.workflow import fringe_depth_mm, wrong_order_mm
 
-from .dataset import SPLITS, load_sample, reference_depth, sample_family, split_files
+from .dataset import SPLITS, load_sample, read_info, reference_depth, sample_family, split_files
 from .models import pad_to_stride
 from .train import load_checkpoint, model_from_checkpoint
 
@@ -101,7 +99,7 @@ def main_surface(depth: np.ndarray, max_step_mm: float, rays) -> np.ndarray:
 
 def data_set(data: str) -> tuple[dict, Calibration]:
     """A data set folder's dataset.yaml and the calibration its samples were made with."""
-    info = yaml.safe_load((Path(data) / "dataset.yaml").read_text())
+    info = read_info(data)
     return info, Calibration.from_dict(info["calibration"])
 
 
@@ -318,14 +316,21 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.exact and not args.refusals:
         parser.error("--exact goes with --refusals")
-    if args.refusals:
-        if len(args.checkpoints) != 1:
-            parser.error("--refusals takes one .onnx model")
-        refusal_table(args.data, args.checkpoints[0], args.split, args.limit, args.exact)
-        return
-    if args.families:
-        family_table(args.data, args.checkpoints, args.split, args.limit)
-        return
+    if args.refusals and len(args.checkpoints) != 1:
+        parser.error("--refusals takes one .onnx model")
+    try:  # a missing or broken data set, checkpoint or model: one line, not a traceback
+        if args.refusals:
+            refusal_table(args.data, args.checkpoints[0], args.split, args.limit, args.exact)
+        elif args.families:
+            family_table(args.data, args.checkpoints, args.split, args.limit)
+        else:
+            split_table(args)
+    except ValueError as e:
+        raise SystemExit(f"evaluate: error: {e}") from None
+
+
+def split_table(args) -> None:
+    """Table 1's form: each checkpoint's, FTP's and the multi-shot label's errors on each split."""
     _, calibration = data_set(args.data)
     models = []
     for path in args.checkpoints:

@@ -48,7 +48,7 @@ from fpp_nodes.core.patterns import PatternSet
 from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits, code_sidebands
 from fpp_nodes.core.workflow import wrong_order_mm
 
-from .dataset import load_sample, reference_depth, sample_family, split_files
+from .dataset import load_sample, read_info, reference_depth, sample_family, split_files
 from .models import CompositeNet
 from .train import load_checkpoint, load_initial_weights, model_from_checkpoint, model_from_config, predict
 
@@ -399,7 +399,7 @@ def export(
 
 def sets_calibration(sets: list) -> Calibration:
     """The calibration the sets were made with: one rig's, or an error."""
-    first, *others = (yaml.safe_load((Path(d) / "dataset.yaml").read_text())["calibration"] for d in sets)
+    first, *others = (read_info(d)["calibration"] for d in sets)
     if any(other != first for other in others):
         raise ValueError(f"{', '.join(map(str, sets))} are not all of one rig (their calibrations differ)")
     return Calibration.from_dict(first)
@@ -411,6 +411,8 @@ def choose_again(model_path: str, data: list) -> dict:
     changed since its export), into its card; the network and its sha256 stay as they are."""
     path = Path(model_path)
     card_path = path.with_suffix(".yaml")
+    if not path.is_file() or not card_path.is_file():
+        raise ValueError(f"{path} is no exported model: it or its card {card_path.name} does not exist")
     card = yaml.safe_load(card_path.read_text())
     if card.get("architecture") not in OUTPUTS:
         raise ValueError(f"{path} is no phase-aware model: it has no rules to choose")
@@ -438,15 +440,21 @@ def main(argv=None):
         "(e.g. composite_hard's scenes beyond training): the first's calibration goes on the card",
     )
     args = parser.parse_args(argv)
-    if Path(args.checkpoint).suffix == ".onnx":
-        if not args.data:
-            parser.error("choosing an exported model's rules again needs --data")
-        decoding = choose_again(args.checkpoint, args.data)["decoding"]
+    again = Path(args.checkpoint).suffix == ".onnx"
+    if again and not args.data:
+        parser.error("choosing an exported model's rules again needs --data")
+    if not again and not args.out:
+        parser.error("exporting a checkpoint needs --out")
+    try:  # a missing or broken checkpoint, model or data set: one line, not a traceback
+        if again:
+            decoding = choose_again(args.checkpoint, args.data)["decoding"]
+        else:
+            card = export(args.checkpoint, args.out, data=args.data)
+    except ValueError as e:
+        raise SystemExit(f"export: error: {e}") from None
+    if again:
         print(f"rewrote the card of {args.checkpoint}: rules chosen on {decoding['chosen_on']}")
         return
-    if not args.out:
-        parser.error("exporting a checkpoint needs --out")
-    card = export(args.checkpoint, args.out, data=args.data)
     print(
         f"wrote {args.out} ({card['parameters']} parameters, sha256 {card['sha256'][:12]}...) and its card; "
         f"parity at {card['parity']['size']}: {card['parity']['max_abs_diff_mm']:.2e} mm"

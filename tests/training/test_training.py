@@ -246,6 +246,21 @@ def test_the_models_pixel_shuffle_is_torchs(r, shape):
     np.testing.assert_array_equal(pixel_shuffle(x, r), expected)
 
 
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["training.evaluate", "--data", "{tmp}", "--families", "x.onnx"], "holds no data set (no dataset.yaml)"),
+        (["training.evaluate", "--data", "{tiny_set}", "--families", "{tmp}/x.onnx"], "does not exist"),
+        (["training.export", "{tmp}/x.pt", "--out", "{tmp}/x.onnx"], "cannot load checkpoint"),
+        (["training.export", "{tmp}/x.onnx", "--data", "{tiny_set}"], "is no exported model"),
+    ],
+)
+def test_missing_data_checkpoints_and_models_are_one_error_line(tiny_set, tmp_path, args, message):
+    command = [a.format(tmp=tmp_path, tiny_set=tiny_set) for a in args]
+    r = subprocess.run([sys.executable, "-m", *command], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1 and message in r.stderr and "Traceback" not in r.stderr, r.stderr[-2000:]
+
+
 def test_evaluate_prints_table_1(trained, tiny_set):
     out, _ = trained
     r = subprocess.run(
