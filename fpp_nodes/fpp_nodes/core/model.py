@@ -203,16 +203,25 @@ class DepthModel:
 
     def outputs(self, image: np.ndarray) -> np.ndarray:
         """The network's outputs for one fringe image (decode's input): its channels at the network
-        input's resolution, shuffled where the card says so (in cnn_depth's network thread: the
-        decoding thread has more to do); a phase-aware model's at the image's, where it read a
-        resampled image."""
+        input's resolution; a phase-aware model's at the image's, where it read a resampled image."""
+        return self.laid_out(self.network(image))
+
+    def network(self, image: np.ndarray) -> np.ndarray:
+        """outputs' first half, the network itself: its outputs as the file gives them (at 1/r of the
+        padded input's resolution with r^2 times the channels, where the card says pixel_shuffle r).
+        cnn_depth runs it on its network's thread, and laid_out on the decoding thread."""
         self.check(image)
         x = network_input(image)
         w, h = self.input_size
         if (w, h) != self.size:
             x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA if w < self.size[0] else cv2.INTER_LINEAR)
         x = cv2.copyMakeBorder(x, 0, (-h) % STRIDE, 0, (-w) % STRIDE, cv2.BORDER_REPLICATE)
-        raw = self.session.run([self.output], {"image": x[None, None]})[0][0]
+        return self.session.run([self.output], {"image": x[None, None]})[0][0]
+
+    def laid_out(self, raw: np.ndarray) -> np.ndarray:
+        """outputs' second half: the network's outputs shuffled, cropped to its input and resampled to
+        the image's size."""
+        w, h = self.input_size
         out = (pixel_shuffle(raw, self.shuffle) if self.shuffle > 1 else raw)[:, :h, :w]
         if self.scale != 1.0:
             out = np.stack([cv2.resize(c, self.size, interpolation=cv2.INTER_LINEAR) for c in out])

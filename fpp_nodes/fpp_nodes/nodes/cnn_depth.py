@@ -24,8 +24,9 @@ through it, whatever rig trained the network; intrinsics for the cloud).
 Up to three frames are in hand at once: the network runs on a frame in the subscription's callback
 while a thread of the node's own decodes an earlier one and publishes it, with at most one more
 between them, so on 2 cores the network takes one (threads 1, the default) and the decoding the other
-(docs/single-shot.md, the node's speed), and neither waits on the other's slower frames; the network's
-thread takes a frame's code sidebands when it would otherwise wait, the decoding thread otherwise.
+(docs/single-shot.md, the node's speed), and neither waits on the other's slower frames. The network's
+thread, the busier, hands its outputs over as the network gives them; only where it would otherwise
+wait does it lay them out (DepthModel.laid_out) and take the frame's code sidebands itself.
 """
 
 from __future__ import annotations
@@ -128,14 +129,15 @@ class CnnDepth(Node):
         start = time.perf_counter()
         try:
             image = image_to_numpy(msg)
-            out = self.model.outputs(image)
+            raw = self.model.network(image)
         except (ImageError, ModelError) as e:
             self.health.report("frames rejected", f"image rejected: {e}")
             return
-        # where a frame already waits for the decoding thread, this one would only wait: it takes the
-        # image's code sidebands meanwhile
-        sidebands = self.model.sidebands(image, out) if self.decoding.full() else None
-        self.decoding.put((msg.header, image, out, sidebands, want, start))
+        out = sidebands = None
+        if self.decoding.full():  # this thread would only wait: it lays the outputs out and takes the sidebands
+            out = self.model.laid_out(raw)
+            sidebands = self.model.sidebands(image, out)
+        self.decoding.put((msg.header, image, raw, out, sidebands, want, start))
 
     def _decode_frames(self):
         while (frame := self.decoding.get()) is not None:
@@ -147,7 +149,8 @@ class CnnDepth(Node):
             finally:
                 self.decoding.task_done()
 
-    def _publish(self, header, image, out, sidebands, want, start):
+    def _publish(self, header, image, raw, out, sidebands, want, start):
+        out = self.model.laid_out(raw) if out is None else out
         depth_mm, confidence = self.model.decode(image, out, sidebands)
         if want["depth"]:
             self.depth_pub.publish(numpy_to_image(depth_mm * np.float32(0.001), header))
