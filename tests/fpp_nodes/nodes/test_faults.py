@@ -284,8 +284,8 @@ def test_whole_numbers_for_float_parameters_at_start(ros_graph):
     camera = procs.start("fringe_camera_sim", "-p", "distortion:=[0, 0, 0, 0, 0]")
     projector = procs.start("pattern_projector", "-p", "rate:=60")
     assert robot.spin_until(lambda: len(frames) >= 20, 60), procs.logs()
-    assert camera.poll() is None and projector.poll() is None
-    assert "17 patterns at 60 Hz" in procs.logs("pattern_projector") and "Traceback" not in procs.logs()
+    assert robot.spin_until(lambda: "17 patterns at 60 Hz" in procs.logs("pattern_projector"), 10)
+    assert camera.poll() is None and projector.poll() is None and "Traceback" not in procs.logs()
 
 
 def test_out_of_range_parameters_at_runtime_are_refused_with_the_reason(ros_graph):
