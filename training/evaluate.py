@@ -324,16 +324,17 @@ def main(argv=None):
         elif args.families:
             family_table(args.data, args.checkpoints, args.split, args.limit)
         else:
-            split_table(args)
+            split_table(args.data, args.checkpoints, args.limit)
     except ValueError as e:
         raise SystemExit(f"evaluate: error: {e}") from None
 
 
-def split_table(args) -> None:
-    """Table 1's form: each checkpoint's, FTP's and the multi-shot label's errors on each split."""
-    _, calibration = data_set(args.data)
+def split_table(data: str, checkpoints: list, limit: int = 0) -> None:
+    """Table 1's form: each checkpoint's, FTP's and the multi-shot label's errors on each split (its
+    first limit samples; 0: all)."""
+    _, calibration = data_set(data)
     models = []
-    for path in args.checkpoints:
+    for path in checkpoints:
         ckpt = load_checkpoint(path)
         model, cfg = model_from_checkpoint(ckpt)
         models.append((cfg.arch.upper(), model, cfg.downsample, ckpt["train_seconds"], f"{ckpt['epoch']}/{cfg.epochs}"))
@@ -342,7 +343,7 @@ def split_table(args) -> None:
     table = {}
     for split in ("train", "val", "test"):
         errs = {c: (ErrorTotals(), ErrorTotals()) for c in columns}  # vs label, vs exact depth
-        for f in split_files(args.data, split)[: args.limit or None]:
+        for f in split_files(data, split)[: limit or None]:
             image, label, truth = load_sample(f)
             preds = {name: predict_full(model, image, ds) for name, model, ds, *_ in models}
             preds["FTP"] = reconstruct_ftp(image, calibration).depth_mm

@@ -30,7 +30,7 @@ def declare(node: Node, name: str, default, description: str, read_only: bool = 
     whole numbers (rate:=60, distortion:=[0,0,0,0,0], as users write them, which rclpy's typing by the
     default refuses with a traceback), returned as floats; anything else there is a ValueError."""
     floats = isinstance(default, float) or (
-        isinstance(default, list) and default and all(isinstance(x, float) for x in default)
+        isinstance(default, list) and len(default) > 0 and all(isinstance(x, float) for x in default)
     )
     descriptor = ParameterDescriptor(description=description, read_only=read_only, dynamic_typing=floats)
     node.declare_parameter(name, default, descriptor)
