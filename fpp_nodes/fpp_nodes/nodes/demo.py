@@ -42,9 +42,7 @@ class DemoRobot(Node):
             Image, Topics.CAMERA_IMAGE, lambda m: self.frames.__setitem__(stamp_ns(m.header.stamp), clock()), Qos.FRAMES
         )
         self.create_subscription(PointCloud2, Topics.POINTS, self._on_cloud, Qos.LARGE)
-        self.create_subscription(
-            PointCloud2, "cnn/" + Topics.POINTS, lambda m: self.cnn_clouds.append((m, clock())), Qos.LARGE
-        )
+        self.create_subscription(PointCloud2, "cnn/" + Topics.POINTS, self._on_cnn_cloud, Qos.LARGE)
         self.create_subscription(
             Image, Topics.TRUTH, lambda m: setattr(self, "truth", image_to_numpy(m).copy()), Qos.LATCHED
         )
@@ -61,6 +59,10 @@ class DemoRobot(Node):
         full = self.max_clouds is not None and len(self.clouds) >= self.max_clouds
         if stamp_ns(cloud.header.stamp) in self.frames and not full:
             self.clouds.append((cloud, time.time_ns()))
+
+    def _on_cnn_cloud(self, cloud: PointCloud2):
+        if self.max_clouds is None or len(self.cnn_clouds) < self.max_clouds:
+            self.cnn_clouds.append((cloud, time.time_ns()))
 
 
 def main(argv=None):
@@ -97,9 +99,10 @@ def main(argv=None):
         while len(robot.clouds) < args.clouds and time.monotonic() < end and sensor.poll() is None:
             rclpy.spin_once(robot, timeout_sec=0.1)
         # Callbacks run one at a time: on a busy machine a cloud can be taken before its sequence's last
-        # frames or the single-shot cloud beside it. Wait for them (bounded), not for a fixed time.
+        # frames, and the single-shot clouds beside them come later (the network and its decoding take
+        # longer). Wait for them (bounded), not for a fixed time.
         settle = time.monotonic() + 30.0
-        while not (robot.sequences_seen() and robot.cnn_clouds) and time.monotonic() < settle:
+        while not (robot.sequences_seen() and len(robot.cnn_clouds) >= len(robot.clouds)) and time.monotonic() < settle:
             rclpy.spin_once(robot, timeout_sec=0.05)
         if sensor.poll() is not None:
             sys.exit(f"demo: the sensor exited with status {sensor.returncode}")

@@ -298,7 +298,7 @@ def test_main_job_writes_clouds_and_reports(tmp_path):
     rows = [line.split() for line in r.stdout.splitlines() if line.strip()[:1].isdigit() and "%" in line]
     multi, single = [row for row in rows if len(row) == 7], [row for row in rows if len(row) == 4]
     assert len(multi) == 2 and all(float(row[5]) < 0.06 for row in multi), r.stdout
-    assert len(single) >= 1, r.stdout  # the single-shot path beside it: RMSE and cover of each cloud
+    assert len(single) == 2, r.stdout  # the single-shot path beside it, a cloud for each: RMSE and cover
 
 
 def test_the_demo_times_a_cloud_only_once_its_whole_sequence_is_here():
