@@ -52,6 +52,8 @@ NEWEST_ONLY = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=R
 
 
 class CnnDepth(Node):
+    LONG_CALLBACKS = True  # the network runs in the image callback: beside other nodes, an executor of its own
+
     def __init__(self, **kwargs):
         super().__init__("cnn_depth", **kwargs)
         path = declare(self, "model", "", "ONNX model with its card beside it (empty: the shipped default)", True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import sys
+import threading
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -117,24 +118,46 @@ def check_positive(name: str, value) -> None:
 
 
 def spin(nodes: list[Node]) -> None:
-    # One thread: rclpy's multi-threaded executor was seen to hand a subscription's messages to its
-    # callback out of order, which breaks sequences; the heavy work releases the GIL anyway.
-    executor = SingleThreadedExecutor()
+    """Run the nodes until shutdown, on single-threaded executors: rclpy's multi-threaded executor was
+    seen to hand a subscription's messages to its callback out of order, which breaks sequences. One
+    executor for all, except that beside other nodes (sensor) a node with LONG_CALLBACKS gets one of its
+    own, on a thread of its own, so that their messages do not wait behind its callbacks (cnn_depth's
+    network: the multi-shot path's capture+depth in make demo, median 53 -> 35 ms, docs/using-the-sensor.md);
+    the heavy work releases the GIL."""
+    shared, beside = SingleThreadedExecutor(), []
     for n in nodes:
-        executor.add_node(n)
+        if getattr(n, "LONG_CALLBACKS", False) and len(nodes) > 1:
+            beside.append(SingleThreadedExecutor())
+            beside[-1].add_node(n)
+        else:
+            shared.add_node(n)
+    failures = []
+    for e in beside:
+        threading.Thread(target=_spin, args=(e, failures), daemon=True).start()
+    try:
+        _spin(shared, failures)
+    finally:
+        for e in beside:
+            e.shutdown(timeout_sec=10)  # after the callback in hand
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown()
+    if failures:
+        raise failures[0]
+
+
+def _spin(executor: SingleThreadedExecutor, failures: list) -> None:
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except Exception:
+    except Exception as e:
         # Ctrl+C shuts the context down from rclpy's signal handler, which can land while the executor
-        # takes a message or a callback publishes: what that raises is the shutdown, not an error
+        # takes a message or a callback publishes: what that raises is the shutdown, not an error. An
+        # error stops every executor of the process (the shutdown ends their spin).
         if rclpy.ok():
-            raise
-    finally:
-        for n in nodes:
-            n.destroy_node()
-        rclpy.try_shutdown()
+            failures.append(e)
+            rclpy.try_shutdown()
 
 
 # glibc's mallopt parameters (malloc.h) and the largest mmap threshold it takes on 64-bit systems

@@ -1,7 +1,7 @@
-"""sensor: the whole simulated sensor in one process, each node as it runs alone, on one executor:
+"""sensor: the whole simulated sensor in one process, each node as it runs alone: on one executor
 pattern_projector -> fringe_camera_sim -> capture_sequence -> fpp_depth (multi-shot: depth/image,
-points) and, side by side, cnn_depth in the cnn namespace (single-shot on each sequence's
-fringe_single image: cnn/depth/image, cnn/points)."""
+points) and, side by side on an executor of its own (common.spin), cnn_depth in the cnn namespace
+(single-shot on each sequence's fringe_single image: cnn/depth/image, cnn/points)."""
 
 from .capture_sequence import CaptureSequence
 from .cnn_depth import CnnDepth
