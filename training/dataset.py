@@ -9,6 +9,7 @@ be measured. Shadowed and untrusted pixels are invalid in the label and are left
     python -m training.dataset --out data/fpp --set composite_retest   # 120 fresh test scenes of the same families
     python -m training.dataset --out data/fpp --set composite_retest2  # and 120 more
     python -m training.dataset --out data/fpp --set composite_hard     # 120 hard validation scenes
+    python -m training.dataset --out data/fpp --set composite_reliefs  # low reliefs, steps of 0.5-8 mm
     python -m training.dataset --out data/my_rig --from-bag bags/run1 [--split train]
 
 On disk (a folder per set and split, one file per sample):
@@ -39,7 +40,15 @@ from tqdm import tqdm
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.phase import phase_sums
 from fpp_nodes.core.reconstruct import PspReconstructor, full_scale
-from fpp_nodes.core.scenes import black_print, fine_stripes, grating_texture, make_scene, pink_noise, textured
+from fpp_nodes.core.scenes import (
+    SCENE_FAMILIES,
+    black_print,
+    fine_stripes,
+    grating_texture,
+    make_scene,
+    pink_noise,
+    textured,
+)
 from fpp_nodes.core.simulation import Rig, beyond_training_rig, random_rig, render
 
 SPLITS = ("train", "val", "test")
@@ -55,12 +64,15 @@ SETS = {
     "composite_retest": ("families", (0, 0, 120), 600_000, "composite"),
     "composite_retest2": ("families", (0, 0, 120), 700_000, "composite"),
     "composite_hard": ("families", (0, 120, 0), 800_000, "composite"),
+    "composite_reliefs": ("reliefs", (120, 40, 40), 1_000_000, "composite"),
 }
 # composite_paper: the composite set's scenes (the same seeds), the paper's single-shot frame: the two
 # patterns compared on the same scenes with the same training budget (README, Table 1).
 # composite_retest, composite_retest2: a second and a third draw of the composite set's test scenes (new
 # seeds, every family): a candidate network is judged there once the composite test split has been read
 # for design choices (the second was, for the quarter-resolution network's; the third for none).
+# composite_reliefs: low reliefs (the reliefs family: steps of 0.5-8 mm, under and over half a fringe order),
+# which no family of the composite set has; a set of its own, so that the composite set's draws stay as they are.
 # composite_hard: validation scenes of the training families under conditions one image reads worst,
 # beyond what training draws (HARD_CONDITIONS): export chooses a network's rules on them beside the
 # composite set's (--data twice), so its silent-error budget is spent where one image is hard to read.
@@ -228,8 +240,8 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
         for i in range(n):
             path = folder / split / f"{seed_of(set_name, split, i)}.npz"
             if not path.exists():
-                families = kind == "families"
-                kind_i = family_of(split, i) if families else kind
+                families = kind == "families" or kind in SCENE_FAMILIES  # one family: its samples as the set's
+                kind_i = family_of(split, i) if kind == "families" else kind
                 jobs.append((kind_i, seed_of(set_name, split, i), path, families, surface_mm, hard))
     rig, patterns = Rig(), calibration.patterns
     (folder / "dataset.yaml").write_text(

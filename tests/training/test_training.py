@@ -98,6 +98,18 @@ def test_no_two_sets_share_a_scene_but_the_pattern_comparison():
     assert seeds["composite"] == seeds["composite_paper"]
 
 
+def test_a_set_of_one_family_keeps_the_composite_targets(tmp_path):
+    """composite_reliefs holds one family (reliefs) with the same per-scene photometry and phase targets
+    as the composite set's families, so it trains and evaluates beside it."""
+    data = write_set(tmp_path, "composite_reliefs", counts=(1, 0, 0), workers=1)
+    (sample,) = split_files(data, "train")
+    assert sample_family(sample) == "reliefs"
+    with np.load(sample) as z:
+        assert z["code"].shape == (4, 480, 640) and z["fringe"].shape == (2, 480, 640)
+        assert np.isfinite(z["label"]).mean() > 0.5
+    assert yaml.safe_load((data / "dataset.yaml").read_text())["scene"] == "reliefs"
+
+
 def test_the_main_surface_is_the_background_with_its_pieces_and_what_joins_it():
     """A plane tilted about 30 degrees (a plane in 3D: inverse depth linear in the rays), a block 30 mm
     tall (its top a plane too) across the whole height and more than half the width, cutting the plane

@@ -2,12 +2,12 @@
 every pixel, and albedo.
 
 Training and evaluation scenes come in families (SCENE_FAMILIES: bust, freeform, blocks, spheres,
-thin, planes, floating) that cover the working volume: a background plane at 1100-1300 mm depth at
-the image centre, tilted by up to 35 degrees in any direction, or no background at all (floating
-objects before a black void); objects up to 100 mm tall on it; every surface between 1000 and
-1350 mm. Albedo 0.15-1.0, times a texture: smooth, checkers, print, stripes or none, drawn
-independently for objects and background. The fixed scenes (sculpture, objects, plane) and height or
-depth maps from files are here too (make_scene).
+thin, planes, floating, reliefs) that cover the working volume: a background plane at 1100-1300 mm
+depth at the image centre, tilted by up to 35 degrees in any direction, or no background at all
+(floating objects before a black void); objects up to 100 mm tall on it, or reliefs 0.5-8 mm high or
+deep; every surface between 1000 and 1350 mm. Albedo 0.15-1.0, times a texture: smooth, checkers,
+print, stripes or none, drawn independently for objects and background. The fixed scenes (sculpture,
+objects, plane) and height or depth maps from files are here too (make_scene).
 """
 
 from __future__ import annotations
@@ -174,6 +174,7 @@ BLOCK_HALF_SIZE_MM = (8.0, 35.0)
 SPHERE_RADIUS_MM = (10.0, 50.0)
 THIN_WIDTH_MM = (2.0, 6.0)
 THIN_HEIGHT_MM = (3.0, 30.0)
+RELIEF_HEIGHT_MM = (0.5, 8.0)
 # Per-scene photometry (random_rig)
 
 
@@ -327,6 +328,43 @@ def _thin_height(X, Y, rng: np.random.Generator) -> np.ndarray:
     return height
 
 
+def _reliefs_height(X, Y, rng: np.random.Generator) -> np.ndarray:
+    """2-8 sharp-edged features RELIEF_HEIGHT_MM high (log-uniform), a third of them engraved (negative):
+    rotated plates, discs, strokes and low staircases, as embossed print, labels and machined parts
+    have. Steps under half a fringe order (4.7 mm in the default rig) keep the surface's phase
+    continuous, so the decoder sees no step there: what keeps their edges sharp is the network."""
+    height = np.zeros_like(X)
+    low, high = np.log(RELIEF_HEIGHT_MM)
+    for _ in range(int(rng.integers(2, 9))):
+        h = np.exp(rng.uniform(low, high)) * (-1.0 if rng.random() < 1 / 3 else 1.0)
+        u, v = _rotated(X, Y, *_centre(rng, X, Y), rng.uniform(0.0, np.pi))
+        kind = int(rng.integers(4))
+        if kind == 0:  # plate
+            a, b = rng.uniform(5.0, 40.0, size=2)
+            shape = np.where((np.abs(u) < a) & (np.abs(v) < b), h, 0.0)
+        elif kind == 1:  # disc
+            shape = np.where(u * u + v * v < rng.uniform(4.0, 35.0) ** 2, h, 0.0)
+        elif kind == 2:  # stroke, as a letter's
+            shape = np.where((np.abs(u) < rng.uniform(5.0, 40.0)) & (np.abs(v) < rng.uniform(0.5, 2.5)), h, 0.0)
+        else:  # staircase of 2-4 steps rising along u
+            a, b, steps = rng.uniform(10.0, 40.0), rng.uniform(8.0, 30.0), int(rng.integers(2, 5))
+            rise = h * (np.floor(np.clip((u + a) / (2 * a), 0.0, 0.999) * steps) + 1) / steps
+            shape = np.where((np.abs(u) < a) & (np.abs(v) < b), rise, 0.0)
+        height = np.where(shape != 0, shape, height)  # the later feature on top
+    return height
+
+
+def reliefs(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
+    """Low reliefs (_reliefs_height) on a sampled background, of the background's material half the time;
+    engraved parts kept inside SURFACE_DEPTH_MM."""
+    X, Y = _grid_mm(rig)
+    height = _reliefs_height(X, Y, rng)
+    depth = np.minimum(_on_background(_background(rig, rng, centre_mm), height), SURFACE_DEPTH_MM[1])
+    background = _surface_albedo(rng, X, Y)
+    features = background if rng.random() < 0.5 else _surface_albedo(rng, X, Y)
+    return Scene("reliefs", depth, np.where(height != 0, features, background))
+
+
 def bust(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) -> Scene:
     """The sculpture's bust, moved about the view, on a sampled background."""
     X, Y = _grid_mm(rig)
@@ -377,7 +415,7 @@ def floating(rig: Rig, rng: np.random.Generator, centre_mm=BACKGROUND_DEPTH_MM) 
     return Scene("floating", depth, np.where(solid, _surface_albedo(rng, X, Y), 0.0))
 
 
-SCENE_FAMILIES = {f.__name__: f for f in (bust, freeform, blocks, spheres, thin, planes, floating)}
+SCENE_FAMILIES = {f.__name__: f for f in (bust, freeform, blocks, spheres, thin, planes, floating, reliefs)}
 FAMILY_NAMES = tuple(SCENE_FAMILIES)
 
 

@@ -28,7 +28,7 @@ def renders(rig, patterns, scenes):
 
 
 def test_families_are_registered_under_their_names():
-    assert FAMILY_NAMES == ("bust", "freeform", "blocks", "spheres", "thin", "planes", "floating")
+    assert FAMILY_NAMES == ("bust", "freeform", "blocks", "spheres", "thin", "planes", "floating", "reliefs")
     for name, family in SCENE_FAMILIES.items():
         assert family.__name__ == name
         assert make_scene(Rig(), name, 3).name == name
