@@ -101,6 +101,8 @@ composite-model: setup
 	$(PY) -m training.evaluate --data data/fpp/composite --families fpp_nodes/fpp_nodes/data/models/composite.onnx
 	$(PY) -m training.dataset --out data/fpp --set composite_retest
 	$(PY) -m training.evaluate --data data/fpp/composite_retest --families fpp_nodes/fpp_nodes/data/models/composite.onnx
+	$(PY) -m training.dataset --out data/fpp --set composite_reliefs  # low reliefs, a family no training scene has
+	$(PY) -m training.evaluate --data data/fpp/composite_reliefs --families fpp_nodes/fpp_nodes/data/models/composite.onnx
 	$(PY) -m training.figures --failures --out docs/pictures fpp_nodes/fpp_nodes/data/models/composite.onnx \
 	  fpp_nodes/fpp_nodes/data/models/unet.onnx
 
