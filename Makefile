@@ -182,8 +182,12 @@ pictures: setup
 	rm -rf out/pictures
 	$(VENV)/bin/fpp simulate --scene sculpture --seed 1000 --out out/pictures/scene
 	$(VENV)/bin/fpp reconstruct out/pictures/scene --calibration fpp_nodes/fpp_nodes/data/sim_calibration.yaml --out out/pictures/psp
+	$(VENV)/bin/fpp simulate --scene reliefs --seed 3 --out out/pictures/reliefs
+	$(VENV)/bin/fpp reconstruct out/pictures/reliefs --method cnn --calibration fpp_nodes/fpp_nodes/data/sim_calibration.yaml \
+	  --out out/pictures/low_reliefs
 	$(PY) -m training.figures --data data/fpp/single --out docs/pictures $(FIGURE_MODELS) \
-	  $(foreach f,depth.png cloud.png profile.png error.png:0.75,--also out/pictures/psp/$(f))
+	  $(foreach f,depth.png cloud.png profile.png error.png:0.75,--also out/pictures/psp/$(f)) \
+	  --also out/pictures/low_reliefs/error.png:0.75
 
 # Re-pin the transitive dependencies after changing requirements.txt.
 constraints: setup
