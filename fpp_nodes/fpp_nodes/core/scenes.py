@@ -332,7 +332,8 @@ def _reliefs_height(X, Y, rng: np.random.Generator) -> np.ndarray:
     """2-8 sharp-edged features RELIEF_HEIGHT_MM high (log-uniform), a third of them engraved (negative):
     rotated plates, discs, strokes and low staircases, as embossed print, labels and machined parts
     have. Steps under half a fringe order (4.7 mm in the default rig) keep the surface's phase
-    continuous, so the decoder sees no step there: what keeps their edges sharp is the network."""
+    continuous, so the decoder sees no step there: only the network could keep their edges sharp, and
+    the shipped one smooths them (scripts/low_reliefs.py)."""
     height = np.zeros_like(X)
     low, high = np.log(RELIEF_HEIGHT_MM)
     for _ in range(int(rng.integers(2, 9))):
