@@ -1,5 +1,5 @@
 """Low reliefs through the single-shot path: a plane at the stand-off covered with 20 mm squares
-(40 mm apart) raised or engraved by 1.5-6 mm, rendered by the default rig (plain albedo 0.8), each
+(40 mm apart) raised or engraved by 1.5-6 mm, rendered by the default rig (plane_scene's plain albedo, 0.9), each
 model's share of the lit pixels given a depth and of its output off by more than 1 mm.
 
     source scripts/env.bash && python scripts/low_reliefs.py [MODEL.onnx ...]   # default: the shipped
