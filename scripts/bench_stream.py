@@ -1,10 +1,13 @@
 """The sensor's stream across processes at 30 camera frames/s: frames in, sequences out, drops and
 latency per stage, for the QoS the sensor uses (names.Qos: RELIABLE, short KEEP_LAST).
 
-    source scripts/env.bash && python scripts/bench_stream.py [--seconds 30] [--rate 30]
+    source scripts/env.bash && python scripts/bench_stream.py [--seconds 30] [--rate 30] [--single-shot]
 
 The four nodes run as separate processes (ros2 run), this script is the robot. As a peer in the same
 run it also subscribes to the cloud BEST_EFFORT, to show what that choice would lose.
+With --single-shot, the single-shot sensor instead: pattern_projector showing the composite alone on
+every tick (single_shot_only), fringe_camera_sim and cnn_depth on its frames, three processes; depth
+images per second, stamp to depth image here, and their accuracy against the simulator's truth.
 """
 
 from __future__ import annotations
@@ -17,10 +20,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import rclpy
+from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import Image, PointCloud2
 
-from fpp_msgs_py import Topics
+from fpp_msgs_py import Qos, Topics, image_to_numpy, stamp_ns
+from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.nodes.demo import DemoRobot, per_cloud
 from fpp_nodes.processes import NodeProcesses
 
@@ -33,9 +38,12 @@ def main():
     parser.add_argument("--seconds", type=float, default=30.0)
     parser.add_argument("--rate", type=float, default=30.0)
     parser.add_argument("--domain", type=int, default=91)
+    parser.add_argument("--single-shot", action="store_true", help="the single-shot sensor at the camera's rate")
     args = parser.parse_args()
     logs = Path(tempfile.mkdtemp(prefix="bench_stream_"))
     procs = NodeProcesses(args.domain, logs)
+    if args.single_shot:
+        return single_shot(args, procs)
     for exe, params in (
         ("fpp_depth", []),
         ("capture_sequence", []),
@@ -83,6 +91,49 @@ def main():
     print(
         f"\nRMSE of the clouds against ground truth: {np.mean([r['rmse_mm'] for r in rows]):.4f} mm "
         f"(mean of {len(rows)}); node logs in {logs}"
+    )
+
+
+def single_shot(args, procs: NodeProcesses) -> None:
+    for exe, params in (
+        ("cnn_depth", []),
+        ("fringe_camera_sim", []),
+        ("pattern_projector", ["-p", f"rate:={args.rate}", "-p", "single_shot_only:=true"]),
+    ):
+        procs.start(exe, *params)
+    rclpy.init(domain_id=args.domain)
+    robot = Node("bench_single_shot")
+    depths, truth = [], []
+    robot.create_subscription(Image, Topics.DEPTH, lambda m: depths.append((time.time_ns(), m)), Qos.LARGE)
+    robot.create_subscription(Image, Topics.TRUTH, truth.append, Qos.LATCHED)
+    try:
+        while not (depths and truth):  # start counting at the first depth image: every node is up
+            rclpy.spin_once(robot, timeout_sec=0.1)
+        depths.clear()
+        end = time.monotonic() + args.seconds
+        while time.monotonic() < end:
+            rclpy.spin_once(robot, timeout_sec=0.05)
+    finally:
+        procs.stop()
+        robot.destroy_node()
+        rclpy.try_shutdown()
+    truth_mm = image_to_numpy(truth[0]) * 1000.0
+    over = ErrorTotals()
+    for _, m in depths:
+        over.add(image_to_numpy(m) * 1000.0, truth_mm, 1.0)
+    latency = [(arrived - stamp_ns(m.header.stamp)) / 1e6 for arrived, m in depths]
+    threads = {"cv2 (each node process, default)": cv2.getNumThreads()}
+    print("\n" + describe(threads, libs=("numpy", "cv2", "onnxruntime")))
+    print(
+        f"{args.seconds:g} s at {args.rate:g} camera frames/s, 640x480 mono8, the projector showing the composite "
+        "alone; 3 nodes in 3 processes + this robot"
+    )
+    print(f"depth images here: {len(depths)}, {len(depths) / args.seconds:.1f} a second")
+    print("\n" + percentile_header("stage (ms)"))
+    print(percentile_row("stamp to depth", latency))
+    print(
+        f"\nagainst the simulator's truth: RMSE {over.rmse:.3f} mm, {over.coverage:.1%} of the lit pixels, "
+        f"{over.share_over:.2%} off by more than 1 mm; node logs in {procs.logs_dir}"
     )
 
 

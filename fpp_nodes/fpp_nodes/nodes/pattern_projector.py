@@ -3,7 +3,9 @@
 Publishes projector/pattern (sensor_msgs/Image): a phase-shift pattern as its profile across the
 fringes (1 x L for vertical fringes, L x 1 for horizontal), the single-shot composite (the last frame
 of each sequence, unless single_shot:=paper) as the full image, stamped with the time it is shown. Continuously
-by default; with continuous:=false, each call of ~/capture (std_srvs/Trigger) shows one sequence.
+by default; with continuous:=false, each call of ~/capture (std_srvs/Trigger) shows one sequence. With
+single_shot_only:=true it shows the single-shot frame alone on every tick, a sequence of one: a single-shot
+sensor (cnn_depth on camera/image_raw) at the camera's rate instead of once a sequence.
 """
 
 from __future__ import annotations
@@ -49,16 +51,25 @@ class PatternProjector(Node):
         self.continuous = declare(
             self, "continuous", True, "show sequences over and over; false: one per ~/capture call"
         )
+        single_shot_only = declare(
+            self,
+            "single_shot_only",
+            False,
+            "show the single-shot frame alone on every tick (cnn_depth at the camera's rate; no multi-shot depth)",
+            True,
+        )
         on_set(self, {"rate": check_positive})
         self.add_post_set_parameters_callback(self._after_set)
         self.lines = pattern_images(self.patterns)
+        if single_shot_only:
+            self.lines = [self.lines[self.patterns.single_shot_index]]
         self.publisher = self.create_publisher(Image, Topics.PATTERN, Qos.FRAMES)
         self.create_service(Trigger, "~/capture", self._on_capture)
         self.index = 0
         self.queued = 0
         self.timer = self.create_timer(1.0 / self.rate, self._on_tick)
         self.get_logger().info(
-            f"{self.patterns.count} patterns at {self.rate:g} Hz, {'continuous' if self.continuous else 'on ~/capture'}"
+            f"{len(self.lines)} pattern(s) at {self.rate:g} Hz, {'continuous' if self.continuous else 'on ~/capture'}"
         )
 
     def _after_set(self, params):

@@ -13,7 +13,7 @@ from fpp_nodes.core.patterns import COMPOSITE_CODES, composite_pattern, composit
 from fpp_nodes.core.phase import PhaseError
 from fpp_nodes.core.reconstruct import CompositeDecoder, code_sidebands, order_surfaces
 from fpp_nodes.core.scenes import FAMILY_NAMES, SURFACE_DEPTH_MM, make_scene, plane_scene
-from fpp_nodes.core.simulation import Rig, Scene, SceneRenderer, random_rig
+from fpp_nodes.core.simulation import Rig, Scene, SceneRenderer, random_rig, render
 from fpp_nodes.core.workflow import simulated_calibration, wrong_order_mm
 
 
@@ -288,6 +288,20 @@ def test_a_threshold_of_zero_does_not_undo_the_refusals(rig, patterns):
         striped = model(striped_plane(rig, patterns, 0, 0.6)[0])
         plain = model(striped_plane(rig, patterns, 0, 0.0)[0])
         assert np.isnan(striped).mean() > 0.99 and np.isfinite(plain).mean() > 0.9, threshold
+
+
+def test_a_phase_shift_frame_read_as_the_composite_is_nan(rig, patterns):
+    """A projector left in its sequence hands a single-shot sensor's cnn_depth phase-shift frames: they
+    carry no codes, so they name no order, and the shipped model gives them no depth (the composite
+    of the same scene: most of it)."""
+    from fpp_nodes.core.model import DepthModel, default_model_path
+
+    model = DepthModel(default_model_path())
+    capture = render(rig, make_scene(rig, "sculpture", 5), patterns, np.random.default_rng(5))
+    lit = capture.valid
+    assert np.isfinite(model(capture.images[patterns.single_shot_index]))[lit].mean() > 0.9
+    for frame in (0, patterns.top_frequency_frames.start, patterns.single_shot_index - 1):
+        assert np.isfinite(model(capture.images[frame]))[lit].mean() < 0.01, frame
 
 
 def test_order_surfaces_join_neighbours_whose_absolute_phases_differ_by_less_than_pi():

@@ -148,6 +148,24 @@ def test_each_node_in_its_own_process(ros_graph):
     check_clouds(robot, clouds, truth)
 
 
+def test_a_single_shot_sensor_gives_depth_from_every_frame_not_once_a_sequence(ros_graph):
+    """pattern_projector with single_shot_only shows the composite on every tick, so cnn_depth on the
+    camera's frames measures far more often than once a sequence (17 ticks), and as well."""
+    procs, robot = ros_graph
+    procs.start("pattern_projector", "-p", "single_shot_only:=true")
+    procs.start("fringe_camera_sim")
+    procs.start("cnn_depth")
+    truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
+    depths = collect(robot, Topics.DEPTH, Image)
+    assert robot.spin_until(lambda: len(depths) >= 6 and truth, 120), "no depth images arrived"
+    ticks = np.diff([stamp_ns(d.header.stamp) for d in depths[:6]]) * 30 / 1e9  # the projector's 30 Hz
+    assert ticks.min() < 17 / 2, ticks  # a sequence of 17 patterns would space them 17 ticks apart
+    truth_mm = image_to_numpy(truth[0]) * 1000.0
+    for d in depths[:6]:
+        e = depth_errors(image_to_numpy(d) * 1000.0, truth_mm)
+        assert e.coverage > 0.85 and np.nanmedian(np.abs(image_to_numpy(d) * 1000.0 - truth_mm)) < 0.1, e
+
+
 def test_broken_sequences_over_dds_are_dropped_never_mixed(ros_graph):
     """A test node plays projector and camera, with a missing, a duplicated and an out-of-order frame."""
     procs, robot = ros_graph
