@@ -51,7 +51,7 @@ class PatternProjector(Node):
         self.continuous = declare(
             self, "continuous", True, "show sequences over and over; false: one per ~/capture call"
         )
-        single_shot_only = declare(
+        self.single_shot_only = single_shot_only = declare(
             self,
             "single_shot_only",
             False,

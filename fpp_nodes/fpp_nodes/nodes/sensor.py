@@ -18,8 +18,19 @@ def single_shot() -> CnnDepth:
     return CnnDepth(namespace="cnn", cli_args=["--ros-args", *(a for r in remaps for a in ("-r", r))])
 
 
+def projector() -> PatternProjector:
+    node = PatternProjector()
+    if node.single_shot_only:  # no sequence would ever complete: say so rather than publish nothing
+        node.destroy_node()
+        raise ValueError(
+            "single_shot_only: the composed sensor runs whole sequences; for a single-shot sensor run "
+            "pattern_projector (single_shot_only:=true), fringe_camera_sim and cnn_depth (docs/using-the-sensor.md)"
+        )
+    return node
+
+
 def main(args=None):
-    run(PatternProjector, FringeCameraSim, CaptureSequence, FppDepth, single_shot, args=args)
+    run(projector, FringeCameraSim, CaptureSequence, FppDepth, single_shot, args=args)
 
 
 if __name__ == "__main__":

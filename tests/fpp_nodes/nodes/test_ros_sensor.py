@@ -210,6 +210,14 @@ def test_a_bad_parameter_is_one_fatal_line(ros_graph):
     assert "steps must be >= 3" in procs.logs() and "Traceback" not in procs.logs()
 
 
+def test_the_composed_sensor_refuses_the_single_shot_only_projector(ros_graph):
+    """Its capture_sequence would never complete a sequence: one line saying what to run instead."""
+    procs, _ = ros_graph
+    proc = procs.start("sensor", "-p", "single_shot_only:=true")
+    assert proc.wait(timeout=60) == 2
+    assert "for a single-shot sensor run" in procs.logs() and "Traceback" not in procs.logs()
+
+
 def test_no_work_for_outputs_nobody_subscribes_to(ros_graph):
     """fpp_depth in this process: a sequence with no subscriber is skipped, not reconstructed."""
     from fpp_nodes.nodes.fpp_depth import FppDepth
