@@ -68,9 +68,9 @@ class PatternProjector(Node):
         self.index = 0
         self.queued = 0
         self.timer = self.create_timer(1.0 / self.rate, self._on_tick)
-        self.get_logger().info(
-            f"{len(self.lines)} pattern(s) at {self.rate:g} Hz, {'continuous' if self.continuous else 'on ~/capture'}"
-        )
+        shown = "the single-shot frame alone" if single_shot_only else f"{len(self.lines)} patterns"
+        when = "continuous" if self.continuous else "on ~/capture"
+        self.get_logger().info(f"{shown} at {self.rate:g} Hz, {when}")
 
     def _after_set(self, params):
         for p in params:
