@@ -7,7 +7,8 @@ The four nodes run as separate processes (ros2 run), this script is the robot. A
 run it also subscribes to the cloud BEST_EFFORT, to show what that choice would lose.
 With --single-shot, the single-shot sensor instead: pattern_projector showing the composite alone on
 every tick (single_shot_only), fringe_camera_sim and cnn_depth on its frames, three processes; depth
-images per second, stamp to depth image here, and their accuracy against the simulator's truth.
+images and clouds per second (this robot subscribes to both), stamp to depth image here, and the depth's
+accuracy against the simulator's truth.
 """
 
 from __future__ import annotations
@@ -106,10 +107,12 @@ def single_shot(args, procs: NodeProcesses) -> None:
     depths, truth = [], []
     robot.create_subscription(Image, Topics.DEPTH, lambda m: depths.append((time.time_ns(), m)), Qos.LARGE)
     robot.create_subscription(Image, Topics.TRUTH, truth.append, Qos.LATCHED)
+    clouds = []  # as a robot subscribes: the cloud beside the depth image
+    robot.create_subscription(PointCloud2, Topics.POINTS, lambda m: clouds.append(time.time_ns()), Qos.LARGE)
     try:
-        while not (depths and truth):  # start counting at the first depth image: every node is up
+        while not (depths and clouds and truth):  # start counting at the first of each: every node is up
             rclpy.spin_once(robot, timeout_sec=0.1)
-        depths.clear()
+        depths.clear(), clouds.clear()
         end = time.monotonic() + args.seconds
         while time.monotonic() < end:
             rclpy.spin_once(robot, timeout_sec=0.05)
@@ -128,7 +131,10 @@ def single_shot(args, procs: NodeProcesses) -> None:
         f"{args.seconds:g} s at {args.rate:g} camera frames/s, 640x480 mono8, the projector showing the composite "
         "alone; 3 nodes in 3 processes + this robot"
     )
-    print(f"depth images here: {len(depths)}, {len(depths) / args.seconds:.1f} a second")
+    print(
+        f"depth images here: {len(depths)}, {len(depths) / args.seconds:.1f} a second; "
+        f"clouds: {len(clouds)}, {len(clouds) / args.seconds:.1f} a second"
+    )
     print("\n" + percentile_header("stage (ms)"))
     print(percentile_row("stamp to depth", latency))
     print(
