@@ -61,17 +61,8 @@ def main():
         lambda m: best_effort.append(m.header.stamp),
         QoSProfile(depth=2, reliability=ReliabilityPolicy.BEST_EFFORT),
     )
-    try:
-        while not robot.clouds:  # start counting at the first cloud: every node is up
-            rclpy.spin_once(robot, timeout_sec=0.1)
-        robot.frames.clear(), robot.clouds.clear(), best_effort.clear()
-        end = time.monotonic() + args.seconds
-        while time.monotonic() < end:
-            rclpy.spin_once(robot, timeout_sec=0.05)
-    finally:
-        procs.stop()
-        robot.destroy_node()
-        rclpy.try_shutdown()
+    # start counting at the first cloud: every node is up
+    listen(robot, procs, args.seconds, lambda: robot.clouds, (robot.frames, robot.clouds, best_effort))
     counts = capture_counts(procs.logs("capture_sequence"))
     frames_in, complete, dropped = counts.frames_in, counts.complete, counts.dropped
     rows = per_cloud(robot)
@@ -95,6 +86,23 @@ def main():
     )
 
 
+def listen(robot, procs: NodeProcesses, seconds: float, ready, counted) -> None:
+    """Spin the robot until ready(), empty what it has counted so far (counted), spin it for seconds more; then stop the
+    nodes and ROS, whatever happened."""
+    try:
+        while not ready():
+            rclpy.spin_once(robot, timeout_sec=0.1)
+        for got in counted:
+            got.clear()
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            rclpy.spin_once(robot, timeout_sec=0.05)
+    finally:
+        procs.stop()
+        robot.destroy_node()
+        rclpy.try_shutdown()
+
+
 def single_shot(args, procs: NodeProcesses) -> None:
     for exe, params in (
         ("cnn_depth", []),
@@ -109,17 +117,8 @@ def single_shot(args, procs: NodeProcesses) -> None:
     robot.create_subscription(Image, Topics.TRUTH, truth.append, Qos.LATCHED)
     clouds = []  # as a robot subscribes: the cloud beside the depth image
     robot.create_subscription(PointCloud2, Topics.POINTS, lambda m: clouds.append(time.time_ns()), Qos.LARGE)
-    try:
-        while not (depths and clouds and truth):  # start counting at the first of each: every node is up
-            rclpy.spin_once(robot, timeout_sec=0.1)
-        depths.clear(), clouds.clear()
-        end = time.monotonic() + args.seconds
-        while time.monotonic() < end:
-            rclpy.spin_once(robot, timeout_sec=0.05)
-    finally:
-        procs.stop()
-        robot.destroy_node()
-        rclpy.try_shutdown()
+    # start counting at the first of each: every node is up
+    listen(robot, procs, args.seconds, lambda: depths and clouds and truth, (depths, clouds))
     truth_mm = image_to_numpy(truth[0]) * 1000.0
     over = ErrorTotals()
     for _, m in depths:

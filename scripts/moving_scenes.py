@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 
+import cv2
 import numpy as np
 
 from fpp_nodes.core.metrics import ErrorTotals
@@ -43,16 +44,17 @@ def moved(scene: Scene, axis: str, amount: float) -> Scene:
     border filled with its nearest row or column), or mm away from the camera (z)."""
     if axis == "z":
         return Scene(scene.name, scene.depth_mm + amount, scene.albedo)
-    shift = int(round(amount))
-    roll = (lambda a: np.roll(a, shift, axis=1)) if axis == "x" else (lambda a: np.roll(a, shift, axis=0))
-    depth, albedo = roll(scene.depth_mm), roll(scene.albedo)
-    edge = slice(0, shift) if shift > 0 else slice(shift, None)
-    for a in (depth, albedo):  # the border the roll wrapped round: its nearest unwrapped line
-        if shift and axis == "x":
-            a[:, edge] = a[:, [shift if shift > 0 else shift - 1]]
-        elif shift:
-            a[edge] = a[[shift if shift > 0 else shift - 1]]
-    return Scene(scene.name, depth, albedo)
+    shift = [0.0, 0.0]
+    shift["xy".index(axis)] = float(round(amount))
+    move = np.float64([[1, 0, shift[0]], [0, 1, shift[1]]])
+    size = scene.depth_mm.shape[::-1]
+    return Scene(
+        scene.name,
+        *(
+            cv2.warpAffine(a, move, size, flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+            for a in (scene.depth_mm, scene.albedo)
+        ),
+    )
 
 
 class Renders:
