@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import sys
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -295,7 +296,9 @@ def write_bag_set(
     )
     info_path = Path(out) / "dataset.yaml"
     info = yaml.safe_load(info_path.read_text()) if info_path.exists() else {}
-    as_stored = yaml.safe_load(yaml.safe_dump(calibration.to_dict()))
+    # the set's images are at full scale (CameraIntrinsics.full_range), so its calibration says no bits
+    widened = replace(calibration, camera=replace(calibration.camera, bits=None))
+    as_stored = yaml.safe_load(yaml.safe_dump(widened.to_dict()))
     if info and (info.get("set") != "bag" or info.get("calibration") != as_stored):
         raise ValueError(
             f"{out} holds a set of another rig or source than {bag}'s (a data set is one rig's): "
@@ -321,10 +324,11 @@ def write_bag_set(
         sequence, _ = assembler.add(match[0], stamp, image.copy(), match[1])
         if sequence is not None:
             rec = psp(sequence.images)
-            composite = phase_targets(sequence.images, rec, calibration) if patterns.single_shot == "composite" else {}
+            images = calibration.camera.full_range(sequence.images)  # as the nodes read them (psp does it too)
+            composite = phase_targets(images, rec, calibration) if patterns.single_shot == "composite" else {}
             np.savez_compressed(
                 folder / f"{sequence.stamps_ns[0]}.npz",
-                input=sequence.images[patterns.single_shot_index],
+                input=images[patterns.single_shot_index],
                 label=rec.depth_mm.astype(np.float32),
                 truth=np.full(rec.depth_mm.shape, np.nan, np.float32),
                 family=Path(bag).name,  # a recorded set's families are its recordings
@@ -345,7 +349,7 @@ def write_bag_set(
                 "label": "multi-shot PSP depth",
                 "truth": "none (a recorded scene): all NaN",
                 "sequences_dropped": info.get("sequences_dropped", 0) + assembler.stats.dropped,
-                "calibration": calibration.to_dict(),
+                "calibration": as_stored,
             },
             sort_keys=False,
         )

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -119,12 +120,14 @@ def _simulate_board(rig: Rig, patterns: PatternSet, board: Board, count: int, se
     print(f"wrote {count} board poses (board.png, vertical/, horizontal/) and sensor.yaml to {out}")
 
 
-def _read_pose(folder) -> BoardPose:
+def _read_pose(folder, camera: CameraIntrinsics) -> BoardPose:
+    """A board pose's images, at full scale for the sensor description's camera bits."""
     folder = Path(folder)
     if not (folder / "board.png").is_file():
         raise io.InputError(f"pose {folder}: no board.png (the board under full projector light)")
     stacks = [io.read_stack(io.image_paths([folder / name])) for name in ("vertical", "horizontal")]
-    return BoardPose(folder.name, io.read_image(folder / "board.png"), *stacks)
+    images = [io.read_image(folder / "board.png"), *stacks]
+    return BoardPose(folder.name, *(camera.full_range(i) for i in images))
 
 
 def _read_sensor(path) -> tuple[CameraIntrinsics, PatternSet]:
@@ -161,7 +164,7 @@ def cmd_calibrate(args) -> None:
     args.working_range = _working_range(args.working_range)
     camera, patterns = _read_sensor(args.sensor)
     if args.board:
-        return _calibrate_board(args, Board.parse(args.board), patterns)
+        return _calibrate_board(args, Board.parse(args.board), patterns, camera)
     stacks, depths = [], []
     for item in tqdm(args.planes, desc="read planes", disable=None):
         folder, sep, depth = item.rpartition(":")
@@ -189,11 +192,13 @@ def _save(calibration: Calibration, path) -> None:
     print(f"working range {calibration.working_range_mm[0]:g}-{calibration.working_range_mm[1]:g} mm")
 
 
-def _calibrate_board(args, board: Board, patterns: PatternSet) -> None:
-    poses = [_read_pose(folder) for folder in tqdm(args.planes, desc="read poses", disable=None)]
+def _calibrate_board(args, board: Board, patterns: PatternSet, sensor: CameraIntrinsics) -> None:
+    """The camera's intrinsics come from the board; of the sensor description's camera only its bits."""
+    poses = [_read_pose(folder, sensor) for folder in tqdm(args.planes, desc="read poses", disable=None)]
     calibration, report = calibrate_from_board(
         poses, board, patterns, args.reference_depth, args.lens, working_range_mm=args.working_range
     )
+    calibration.camera = replace(calibration.camera, bits=sensor.bits)
     _save(calibration, args.out)
     print(f"{'pose':24} {'depth mm':>9} {'camera px':>10} {'projector px':>13} {'corners':>8}")
     for p in report.poses:
@@ -461,7 +466,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--sensor",
         required=True,
         help="YAML with 'camera' intrinsics and 'patterns' (fpp simulate writes one; with --board only the "
-        "camera's size and the patterns are used)",
+        "camera's size and bits and the patterns are used); the camera's 'bits: 12' where a driver sends a "
+        "12-bit camera's pixels as mono16",
     )
     p.add_argument(
         "--board",

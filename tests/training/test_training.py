@@ -340,40 +340,40 @@ def test_cnn_depth_node(trained, tmp_path, ros_graph):
     assert "has no card" in procs.logs() and "Traceback" not in procs.logs()
 
 
-def test_a_data_set_from_a_recorded_bag(tmp_path, capsys, near_rig, near_calibration):
-    """What a user with real hardware does: record full sequences, label them with the multi-shot path;
-    here a rig at 600 mm, whose labels are kept at their own depths (float32 mm). The evaluation runs
-    a model with the set's calibration and, with no exact depth, judges it against the label."""
+def write_bag(path, calibration, images) -> None:
+    """A bag as record writes one: the calibration, then projector and camera joining mid-sequence, then
+    one whole sequence of these camera images."""
     from rclpy.serialization import serialize_message
 
     from fpp_msgs_py import header_at, numpy_to_image
     from fpp_nodes.bag import BagWriter
     from fpp_nodes.core.patterns import pattern_images
+
+    patterns = calibration.patterns
+    writer = BagWriter(path)
+    writer.write_calibration(calibration.to_yaml(), 0)
+    t = 1_000_000_000
+    for k in list(range(5, patterns.count)) + list(range(patterns.count)):
+        header = header_at(t, "camera_optical_frame")
+        pattern = numpy_to_image(pattern_images(patterns)[k], header)
+        writer.write("/projector/pattern", "sensor_msgs/msg/Image", t, serialize_message(pattern))
+        frame = numpy_to_image(images[k], header)
+        writer.write("/camera/image_raw", "sensor_msgs/msg/Image", t + 1000, serialize_message(frame))
+        t += 33_000_000
+    writer.close()
+
+
+def test_a_data_set_from_a_recorded_bag(tmp_path, capsys, near_rig, near_calibration):
+    """What a user with real hardware does: record full sequences, label them with the multi-shot path;
+    here a rig at 600 mm, whose labels are kept at their own depths (float32 mm). The evaluation runs
+    a model with the set's calibration and, with no exact depth, judges it against the label."""
     from fpp_nodes.core.scenes import make_scene
     from fpp_nodes.core.simulation import render
     from training.dataset import write_bag_set
 
     rig, patterns = near_rig, near_calibration.patterns
     capture = render(rig, make_scene(rig, "objects", 21), patterns, np.random.default_rng(21))
-    writer = BagWriter(tmp_path / "bag")
-    writer.write_calibration(near_calibration.to_yaml(), 0)
-    t = 1_000_000_000
-    for k in list(range(5, patterns.count)) + list(range(patterns.count)):  # joins mid-sequence, then one whole
-        header = header_at(t, "camera_optical_frame")
-        writer.write(
-            "/projector/pattern",
-            "sensor_msgs/msg/Image",
-            t,
-            serialize_message(numpy_to_image(pattern_images(patterns)[k], header)),
-        )
-        writer.write(
-            "/camera/image_raw",
-            "sensor_msgs/msg/Image",
-            t + 1000,
-            serialize_message(numpy_to_image(capture.images[k], header)),
-        )
-        t += 33_000_000
-    writer.close()
+    write_bag(tmp_path / "bag", near_calibration, capture.images)
     assert write_bag_set(tmp_path / "bag", tmp_path / "set") == 1
     image, label, truth = load_sample(split_files(tmp_path / "set", "train")[0])
     np.testing.assert_array_equal(image, capture.images[patterns.single_shot_index])
@@ -546,3 +546,28 @@ def test_the_code_comparison_measures_margins_as_the_decoder_does():
     assert third_margin(DESIGNS["+ (180, 96), 0.31/0.23"], rig) >= shipped
     for stride in (2, 4):  # either stride's pixel shuffle gives the full resolution back
         assert CompositeNet(4, stride=stride)(torch.zeros(1, 1, 32, 32)).shape == (1, 6, 32, 32)
+
+
+def test_a_data_set_from_a_bag_of_a_12_bit_camera_in_mono16(tmp_path, calibration):
+    """Its frames are learnt at full scale, as the nodes read them: the same input and targets as the
+    rig's 16-bit frames would give, within the 12-bit quantization."""
+    from dataclasses import replace
+
+    from fpp_nodes.core.scenes import make_scene
+    from fpp_nodes.core.simulation import Rig, render
+    from training.dataset import read_info, write_bag_set
+
+    rig = Rig(camera_bit_depth=16, noise_sigma=16.0)
+    capture = render(rig, make_scene(rig, "objects", 21), calibration.patterns, np.random.default_rng(21))
+    twelve = replace(calibration, camera=replace(calibration.camera, bits=12))
+    for name, cal, images in (("wide", calibration, capture.images), ("twelve", twelve, capture.images >> 4)):
+        write_bag(tmp_path / f"{name}.bag", cal, images.astype(np.uint16))
+        assert write_bag_set(tmp_path / f"{name}.bag", tmp_path / name) == 1
+    # the frames are stored widened, so the set's calibration is the 16-bit rig's: evaluate widens nothing again
+    assert read_info(tmp_path / "twelve")["calibration"] == read_info(tmp_path / "wide")["calibration"]
+    (wide,), (narrow,) = (split_files(tmp_path / name, "train") for name in ("wide", "twelve"))
+    with np.load(wide) as w, np.load(narrow) as n:
+        assert np.abs(n["input"].astype(int) - w["input"]).max() <= 16  # one 12-bit step
+        both = np.isfinite(w["phase"]) & np.isfinite(n["phase"])
+        assert both.sum() > 0.9 * np.isfinite(w["phase"]).sum()
+        assert np.abs(n["fringe"][:, both].astype(np.float32) - w["fringe"][:, both]).max() < 0.01  # of full scale

@@ -167,7 +167,11 @@ class CameraIntrinsics:
 
     The phase-to-depth model is written in ideal pixel coordinates (ideal_pixels: where each pixel's
     ray would land in the same camera without distortion), so that it stays rational; depth is along
-    the optical axis, and XYZ = depth * (x/z, y/z, 1) of each pixel's true ray (rays)."""
+    the optical axis, and XYZ = depth * (x/z, y/z, 1) of each pixel's true ray (rays).
+
+    bits: how many bits of each pixel value the camera uses, where fewer than its images' type holds (a
+    12-bit camera's driver sending mono16 with values up to 4095); None: all of them. full_range
+    brings such frames to their type's full scale, where saturation and the fringe thresholds are."""
 
     width: int
     height: int
@@ -176,6 +180,7 @@ class CameraIntrinsics:
     cx: float
     cy: float
     distortion: tuple = (0.0, 0.0, 0.0, 0.0, 0.0)
+    bits: int | None = None
 
     def __post_init__(self):
         if self.width < 1 or self.height < 1:
@@ -185,6 +190,50 @@ class CameraIntrinsics:
         self.distortion = tuple(float(k) for k in self.distortion)
         if len(self.distortion) != len(DISTORTION_TERMS) or not np.all(np.isfinite(self.distortion)):
             raise CalibrationError(f"distortion must be 5 finite numbers {DISTORTION_TERMS}, got {self.distortion}")
+        if self.bits is not None and not (type(self.bits) is int and 1 <= self.bits <= 16):
+            raise CalibrationError(f"camera bits must be a whole number 1-16, got {self.bits!r}")
+
+    @property
+    def frame_dtype(self) -> type:
+        """The type of its frames where bits tell it (mono16 above 8), else mono8's: what a node warms up on."""
+        return np.uint16 if (self.bits or 8) > 8 else np.uint8
+
+    def full_range(self, image: np.ndarray) -> np.ndarray:
+        """A camera frame (or a stack) at its type's full scale: values of a camera with fewer bits
+        than the type holds are widened by repeating their bits (4095 of 12 bits -> 65535, 0 -> 0,
+        linear within a count), so that saturation and thresholds in fractions of full scale hold.
+        A frame with a value the camera's bits cannot hold is an error (it was widened already, or
+        the calibration names another camera)."""
+        width = 8 * image.dtype.itemsize
+        if self.bits is None or image.dtype.kind != "u" or self.bits == width:
+            return image
+        if self.bits > width:
+            raise CalibrationError(f"a {self.bits}-bit camera's frames do not fit {image.dtype} (mono{width})")
+        top = (1 << self.bits) - 1
+        if (largest := int(image.max(initial=0))) > top:
+            raise CalibrationError(
+                f"frame has a value of {largest}, more than the {top} of the calibration's {self.bits}-bit camera"
+            )
+        wide, shift = np.zeros_like(image), width - self.bits
+        while shift > -self.bits:  # the bits repeated below themselves until the type is full
+            wide |= image << shift if shift >= 0 else image >> -shift
+            shift -= self.bits
+        return wide
+
+    def narrow_hint(self, image: np.ndarray) -> str | None:
+        """What to do about 16-bit frames that use only 12 bits or fewer while the calibration says
+        nothing of the camera's bits: their saturation (4095 for 12 bits) would go unseen."""
+        if self.bits is not None or image.dtype != np.uint16:
+            return None
+        largest = int(image.max(initial=0))
+        for bits in (8, 10, 12, 14):
+            if largest < 1 << bits:
+                return (
+                    f"mono16 frames reach only {largest} of 65535: a {bits}-bit camera? Give the calibration's "
+                    f"camera 'bits: {bits}' (fpp calibrate takes it from the sensor description), or its "
+                    "saturation goes unseen; or the scene is very dark"
+                )
+        return None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -229,13 +278,18 @@ class CameraIntrinsics:
             k: (int(getattr(self, k)) if k in ("width", "height") else float(getattr(self, k)))
             for k in ("width", "height", "fx", "fy", "cx", "cy")
         }
-        return {**d, "distortion": list(self.distortion)} if any(self.distortion) else d
+        if any(self.distortion):
+            d["distortion"] = list(self.distortion)
+        return {**d, "bits": self.bits} if self.bits is not None else d
 
     @classmethod
     def from_dict(cls, d: dict) -> CameraIntrinsics:
-        """From to_dict's mapping; a camera without 'distortion' has none."""
+        """From to_dict's mapping; a camera without 'distortion' has none, one without 'bits' uses its
+        images' whole type."""
         return cls(
-            **{k: d[k] for k in ("width", "height", "fx", "fy", "cx", "cy")}, distortion=d.get("distortion", (0,) * 5)
+            **{k: d[k] for k in ("width", "height", "fx", "fy", "cx", "cy")},
+            distortion=d.get("distortion", (0,) * 5),
+            bits=d.get("bits"),
         )
 
 

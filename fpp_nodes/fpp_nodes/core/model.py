@@ -196,6 +196,14 @@ class DepthModel:
         if image.dtype not in (np.uint8, np.uint16):
             raise ModelError(f"the model takes mono8 or mono16 images, got {image.dtype}")
 
+    def frame(self, image: np.ndarray) -> np.ndarray:
+        """A camera frame as the model reads it: checked, and at its type's full scale (the
+        calibration camera's bits: CameraIntrinsics.full_range); what infer takes, and what the
+        node hands network, sidebands and decode."""
+        self.check(image)
+        rig = self.calibration or self.card_calibration
+        return image if rig is None else rig.camera.full_range(image)
+
     def __call__(self, image: np.ndarray) -> np.ndarray:
         """Depth in mm (float32, camera size) of one fringe image, NaN where it is not to be trusted
         (see trusted_single_shot)."""
@@ -238,6 +246,7 @@ class DepthModel:
         probability that each pixel's fringe order is right (NaN depth below its threshold, and within
         its card's margin of a pixel refused where fringes show: refusal_margin; NaN itself where the
         image shows no usable fringes); a depth-regressing model has none."""
+        image = self.frame(image)
         return self.decode(image, self.outputs(image))
 
     def decode(

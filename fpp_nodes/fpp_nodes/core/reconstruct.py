@@ -177,6 +177,7 @@ class PspReconstructor:
     def __call__(self, images: np.ndarray) -> Reconstruction:
         images = np.ascontiguousarray(images)
         self.check(images)
+        images = self.calibration.camera.full_range(images)
         shape = images.shape[1:]
         out = Reconstruction(
             *(np.empty(shape, np.float32), np.empty((*shape, 3), np.float32), np.empty(shape, bool)),
@@ -637,6 +638,7 @@ def reconstruct_ftp(
     image = np.asarray(image)
     if image.shape != cal.camera.shape:
         raise PhaseError(f"expected one {cal.camera.width}x{cal.camera.height} image, got shape {image.shape}")
+    image = cal.camera.full_range(image)
     u, v = cal.camera.ideal_pixels()
     if cal.code_models:
         if decoder is None:

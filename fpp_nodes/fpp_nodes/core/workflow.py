@@ -55,6 +55,7 @@ def calibrate_from_planes(
                 f"plane at {z} mm: images are {images.shape[2]}x{images.shape[1]}, "
                 f"the camera is {camera.width}x{camera.height}"
             )
+        images = camera.full_range(images)
         phase, valid, _, noise = multi_frequency_phase(images, patterns, limits)
         valid &= noise <= CALIBRATION_MAX_PHASE_NOISE_RAD
         v, u = np.nonzero(valid)

@@ -40,11 +40,11 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from fpp_msgs_py import ImageError, Qos, Topics, camera_info, image_to_numpy, numpy_to_image, xyz_to_cloud
+from fpp_msgs_py import ImageError, Qos, Topics, image_to_numpy, numpy_to_image, xyz_to_cloud
 
-from ..core.calibration import back_project
+from ..core.calibration import CalibrationError, back_project
 from ..core.model import DepthModel, ModelError, default_model_path
-from .common import declare, describe, follow_calibration, load_calibration, run
+from .common import camera_info_of, declare, describe, follow_calibration, load_calibration, run
 from .health import Health
 
 NETWORK_THREADS = 1  # the default: the network on one core, the decoding of earlier frames on the other
@@ -91,7 +91,7 @@ class CnnDepth(Node):
         follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
         cam = self.calibration.camera
         # the decoder's compiled pass (or numba's cached copy) and onnxruntime's first run now, not on a frame
-        self.model.infer(np.zeros((cam.height, cam.width), np.uint8))
+        self.model.infer(np.zeros((cam.height, cam.width), cam.frame_dtype))
         self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
         self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
         self.points_pub = self.create_publisher(PointCloud2, Topics.POINTS, Qos.LARGE)
@@ -115,7 +115,7 @@ class CnnDepth(Node):
         every cloud from the next frame on; the frame in hand is published with the one before."""
         self.decoding.join()  # one executor thread: no frame is queued until this returns
         self.model.use(calibration)
-        self.calibration, self.info = calibration, camera_info(**calibration.camera.to_dict())
+        self.calibration, self.info = calibration, camera_info_of(calibration.camera)
         self.health.facts["calibration"] = describe(calibration, source)
 
     def _on_image(self, msg: Image):
@@ -130,11 +130,13 @@ class CnnDepth(Node):
             return
         start = time.perf_counter()
         try:
-            image = image_to_numpy(msg)
+            image = self.model.frame(image_to_numpy(msg))
             raw = self.model.network(image)
-        except (ImageError, ModelError) as e:
+        except (ImageError, ModelError, CalibrationError) as e:
             self.health.report("frames rejected", f"image rejected: {e}")
             return
+        if hint := self.calibration.camera.narrow_hint(image):
+            self.health.report("frames of fewer bits than mono16", hint)
         out = sidebands = None
         if self.decoding.full():  # this thread would only wait: it lays the outputs out and takes the sidebands
             out = self.model.laid_out(raw)

@@ -15,7 +15,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import String
 
-from fpp_msgs_py import Qos, Topics
+from fpp_msgs_py import Qos, Topics, camera_info
 
 from ..core.calibration import Calibration, default_calibration_path
 
@@ -67,6 +67,11 @@ def load_calibration(node: Node) -> tuple[Calibration, str]:
     calibration = Calibration.load(path)  # CalibrationError names the problem
     node.get_logger().info(f"calibration {describe(calibration, path)}")
     return calibration, path
+
+
+def camera_info_of(camera) -> CameraInfo:
+    """The calibration's camera as sensor_msgs/CameraInfo, which has no field for its bits."""
+    return camera_info(**{k: v for k, v in camera.to_dict().items() if k != "bits"})
 
 
 def describe(calibration: Calibration, source: str) -> str:

@@ -15,11 +15,12 @@ import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from fpp_msgs_py import ImageError, Qos, Topics, camera_info, image_to_numpy, numpy_to_image, xyz_to_cloud
+from fpp_msgs_py import ImageError, Qos, Topics, image_to_numpy, numpy_to_image, xyz_to_cloud
 
+from ..core.calibration import CalibrationError
 from ..core.phase import PhaseError
 from ..core.reconstruct import PspReconstructor, QualityLimits
-from .common import declare, describe, follow_calibration, load_calibration, run
+from .common import camera_info_of, declare, describe, follow_calibration, load_calibration, run
 from .health import Health
 
 
@@ -58,8 +59,8 @@ class FppDepth(Node):
         self.reconstruct = PspReconstructor(calibration, self.limits)
         cam = calibration.camera
         # compiles the path's kernels (or loads them from numba's cache) now, not on the first sequence
-        self.reconstruct(np.zeros((calibration.patterns.count, cam.height, cam.width), np.uint8))
-        self.info = camera_info(**cam.to_dict())
+        self.reconstruct(np.zeros((calibration.patterns.count, cam.height, cam.width), cam.frame_dtype))
+        self.info = camera_info_of(cam)
 
     def _wanted(self):
         return {
@@ -83,9 +84,11 @@ class FppDepth(Node):
                     f"got {stack.shape[1]}x{stack.shape[0]}"
                 )
             rec = self.reconstruct(stack.reshape(k, cam.height, cam.width))
-        except (ImageError, PhaseError) as e:
+        except (ImageError, PhaseError, CalibrationError) as e:
             self.health.report("sequences rejected", f"sequence rejected: {e}")
             return
+        if hint := cam.narrow_hint(stack):
+            self.health.report("frames of fewer bits than mono16", hint)
         header = msg.header
         if wanted["depth"]:
             self.depth_pub.publish(numpy_to_image(rec.depth_mm * np.float32(0.001), header))

@@ -61,6 +61,10 @@ def test_calibration_file_round_trips(calibration, tmp_path):
     lens = replace(calibration, camera=replace(calibration.camera, distortion=(-0.9, 0.1, 1e-4, -2e-4, 0.0)))
     lens.save(path)
     assert Calibration.load(path).camera == lens.camera
+    assert "bits" not in yaml.safe_load(path.read_text())["camera"]
+    twelve = replace(calibration, camera=replace(calibration.camera, bits=12))
+    twelve.save(path)
+    assert Calibration.load(path).camera == twelve.camera and Calibration.load(path).camera.bits == 12
 
 
 @pytest.mark.parametrize(
@@ -75,6 +79,8 @@ def test_calibration_file_round_trips(calibration, tmp_path):
         (lambda d: d["patterns"].update(steps=2), "steps must be >= 3"),
         (lambda d: d["camera"].update(fx=-5), "focal lengths"),
         (lambda d: d["camera"].update(distortion=[0.1, 0.2]), "distortion must be 5 finite numbers"),
+        (lambda d: d["camera"].update(bits=20), "camera bits must be a whole number 1-16"),
+        (lambda d: d["camera"].update(bits=12.5), "camera bits must be a whole number 1-16"),
         (lambda d: d.update(working_range_mm=[1350.0, 1000.0]), "0 < near < far"),
         (lambda d: d.update(working_range_mm=[1000.0]), "must be \\[near, far\\]"),
     ],
@@ -152,3 +158,66 @@ def test_a_camera_that_sees_the_projectors_side_edges_calibrates(patterns):
     planes = (1140.0, 1170.0, 1200.0, 1230.0, 1260.0)
     _, residuals = simulated_calibration(rig, patterns, 1, planes, working_range_mm=None)
     assert max(residuals) < 0.03, residuals
+
+
+def test_a_cameras_bits_widen_its_frames_to_full_scale(calibration):
+    twelve = replace(calibration.camera, bits=12)
+    values = np.arange(4096, dtype=np.uint16)
+    wide = twelve.full_range(values)
+    assert wide.dtype == np.uint16 and wide[0] == 0 and wide[-1] == 65535  # saturation stays saturation
+    assert np.all(np.diff(wide.astype(int)) > 0)
+    assert np.abs(wide - values * (65535 / 4095)).max() < 1.0  # linear to within a count of 65535
+    frame = np.full((4, 4), 200, np.uint8)
+    assert calibration.camera.full_range(frame) is frame  # bits not said: the frame as it came
+    assert replace(calibration.camera, bits=8).full_range(frame) is frame
+    with pytest.raises(CalibrationError, match="value of 5000, more than the 4095"):  # widened twice, or another camera
+        twelve.full_range(np.array([[5000]], np.uint16))
+    with pytest.raises(CalibrationError, match="do not fit uint8"):
+        twelve.full_range(frame)
+
+
+def test_a_12_bit_camera_in_mono16_frames_measures_as_a_16_bit_one(calibration):
+    """A camera driver that sends 12-bit pixels as mono16 (values up to 4095): said in the calibration,
+    its frames measure as the same rig's 16-bit frames, saturation refused on both paths; not said, the
+    multi-shot path takes clipped fringes for good ones, and the frames are said to be narrow."""
+    from fpp_nodes.core.model import DepthModel, default_model_path
+    from fpp_nodes.core.reconstruct import PspReconstructor
+    from fpp_nodes.core.scenes import make_scene
+    from fpp_nodes.core.simulation import Rig
+
+    rig = Rig(camera_bit_depth=16, noise_sigma=16.0, gain=1.2)  # bright: a fifth of the fringes clip
+    capture = render(rig, make_scene(rig, "sculpture", 3), rig.pattern_set(), np.random.default_rng(1))
+    lit, narrow = capture.valid, (capture.images >> 4).astype(np.uint16)
+    clipped = lit & (capture.images[12:16] >= 65535).any(0)  # the highest frequency's fringes
+    assert 0.1 < clipped.sum() / lit.sum() < 0.3
+    twelve = replace(calibration, camera=replace(calibration.camera, bits=12))
+
+    def measured(cal, images):
+        multi = PspReconstructor(cal)(images).depth_mm
+        single = DepthModel(default_model_path(), calibration=cal)(images[cal.patterns.single_shot_index])
+        return [
+            (np.isfinite(d[lit]).mean(), np.sqrt(np.nanmean((d - capture.depth_mm)[lit] ** 2))) for d in (multi, single)
+        ]
+
+    wide, said = measured(calibration, capture.images), measured(twelve, narrow)
+    for (cover, rmse), (cover_12, rmse_12) in zip(wide, said):
+        assert abs(cover_12 - cover) < 0.01 and abs(rmse_12 - rmse) < 0.1 * rmse, (wide, said)
+    assert np.isnan(PspReconstructor(twelve)(narrow).depth_mm[clipped]).all()
+    assert np.isfinite(PspReconstructor(calibration)(narrow).depth_mm[clipped]).mean() > 0.9  # 65535 never comes
+    assert "a 12-bit camera?" in calibration.camera.narrow_hint(narrow)
+    assert twelve.camera.narrow_hint(narrow) is None and calibration.camera.narrow_hint(capture.images) is None
+
+
+def test_planes_of_a_12_bit_camera_calibrate_as_a_16_bit_ones(calibration):
+    from fpp_nodes.core.simulation import Rig
+
+    rig, depths = Rig(camera_bit_depth=16, noise_sigma=16.0), (1100, 1150, 1200, 1250, 1300)
+    patterns = rig.pattern_set()
+    stacks = [render(rig, plane_scene(rig, z), patterns, np.random.default_rng(z)).images for z in depths]
+    wide, _ = calibrate_from_planes(stacks, depths, rig.camera(), patterns)
+    twelve = replace(rig.camera(), bits=12)
+    narrow, _ = calibrate_from_planes([(s >> 4).astype(np.uint16) for s in stacks], depths, twelve, patterns)
+    assert narrow.camera.bits == 12  # the file says so to every node that reads it
+    u, v = pixel_grid((rig.height, rig.width))
+    phase = wide.model.phase_at_depth(1200.0, u, v)
+    assert np.abs(narrow.model.depth(phase, u, v) - 1200.0).max() < 0.01  # mm
