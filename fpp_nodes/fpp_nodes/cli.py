@@ -291,6 +291,8 @@ def _truth_beside(images: list, truth: str | None) -> np.ndarray | None:
 def cmd_reconstruct(args) -> None:
     calibration = Calibration.load(args.calibration)
     images = io.read_stack(io.image_paths(args.images))
+    if hint := calibration.camera.narrow_hint(images):
+        print(f"warning: {hint}", file=sys.stderr)
     limits = QualityLimits(
         max_depth_noise_mm=args.max_depth_noise,
         max_depth_step_mm=args.max_depth_step,

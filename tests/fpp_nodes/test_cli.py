@@ -89,6 +89,27 @@ def test_reconstruct_also_reads_real_captures_as_a_list_of_files(workdir, tmp_pa
     truth = np.load(workdir / "scene" / "depth_gt_mm.npy")
     ok = np.isfinite(depth) & (cv2.imread(str(workdir / "scene" / "valid_gt.png"), cv2.IMREAD_GRAYSCALE) > 0)
     assert ok.mean() > 0.9 and np.sqrt(np.mean((depth - truth)[ok] ** 2)) < 0.06
+    assert "warning" not in r.stderr
+
+
+def test_a_12_bit_cameras_captures_are_measured_at_full_scale_where_the_calibration_says_so(workdir, tmp_path):
+    """16-bit TIFFs of a 12-bit camera (values up to 4095): a warning where the calibration does not
+    say the camera's bits, none and the same depth where it does."""
+    from fpp_nodes.core.calibration import Calibration
+
+    files = []
+    for i, p in enumerate(sorted((workdir / "scene").glob("fringe_*.png"))):
+        files.append(tmp_path / f"capture_{i:02d}.tif")
+        cv2.imwrite(str(files[-1]), cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.uint16) * 16)
+    calibration = Calibration.load(workdir / "cal.yaml")
+    replace(calibration, camera=replace(calibration.camera, bits=12)).save(tmp_path / "cal12.yaml")
+    unsaid = fpp("reconstruct", *files, "--calibration", workdir / "cal.yaml", "--out", tmp_path / "unsaid")
+    assert unsaid.returncode == 0 and "a 12-bit camera?" in unsaid.stderr, unsaid.stderr
+    said = fpp("reconstruct", *files, "--calibration", tmp_path / "cal12.yaml", "--out", tmp_path / "said")
+    assert said.returncode == 0 and "warning" not in said.stderr, said.stderr
+    depth, truth = np.load(tmp_path / "said" / "depth_mm.npy"), np.load(workdir / "scene" / "depth_gt_mm.npy")
+    ok = np.isfinite(depth) & (cv2.imread(str(workdir / "scene" / "valid_gt.png"), cv2.IMREAD_GRAYSCALE) > 0)
+    assert ok.mean() > 0.9 and np.sqrt(np.mean((depth - truth)[ok] ** 2)) < 0.06
 
 
 def bad_inputs(workdir, tmp_path):
