@@ -44,7 +44,7 @@ from fpp_msgs_py import ImageError, Qos, Topics, image_to_numpy, numpy_to_image,
 
 from ..core.calibration import CalibrationError, back_project
 from ..core.model import DepthModel, ModelError, default_model_path
-from .common import camera_info_of, declare, describe, follow_calibration, load_calibration, run
+from .common import camera_info_of, declare, describe, follow_calibration, load_calibration, run, warn_if_narrow
 from .health import Health
 
 NETWORK_THREADS = 1  # the default: the network on one core, the decoding of earlier frames on the other
@@ -135,8 +135,7 @@ class CnnDepth(Node):
         except (ImageError, ModelError, CalibrationError) as e:
             self.health.report("frames rejected", f"image rejected: {e}")
             return
-        if hint := self.calibration.camera.narrow_hint(image):
-            self.health.report("frames of fewer bits than mono16", hint)
+        warn_if_narrow(self.health, self.calibration.camera, image)
         out = sidebands = None
         if self.decoding.full():  # this thread would only wait: it lays the outputs out and takes the sidebands
             out = self.model.laid_out(raw)

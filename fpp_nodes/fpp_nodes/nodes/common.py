@@ -74,6 +74,13 @@ def camera_info_of(camera) -> CameraInfo:
     return camera_info(**{k: v for k, v in camera.to_dict().items() if k != "bits"})
 
 
+def warn_if_narrow(health, camera, frame) -> None:
+    """Say on /diagnostics (and in the log, at most every 5 s) that mono16 frames use 12 bits or fewer
+    where the calibration does not say the camera's bits (CameraIntrinsics.narrow_hint)."""
+    if hint := camera.narrow_hint(frame):
+        health.report("frames of fewer bits than mono16", hint)
+
+
 def describe(calibration: Calibration, source: str) -> str:
     """Which calibration, for logs and /diagnostics: where from, its size, a hash of its content."""
     digest = hashlib.sha256(calibration.to_yaml().encode()).hexdigest()[:12]

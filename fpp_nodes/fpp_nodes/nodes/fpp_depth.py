@@ -20,7 +20,7 @@ from fpp_msgs_py import ImageError, Qos, Topics, image_to_numpy, numpy_to_image,
 from ..core.calibration import CalibrationError
 from ..core.phase import PhaseError
 from ..core.reconstruct import PspReconstructor, QualityLimits
-from .common import camera_info_of, declare, describe, follow_calibration, load_calibration, run
+from .common import camera_info_of, declare, describe, follow_calibration, load_calibration, run, warn_if_narrow
 from .health import Health
 
 
@@ -87,8 +87,7 @@ class FppDepth(Node):
         except (ImageError, PhaseError, CalibrationError) as e:
             self.health.report("sequences rejected", f"sequence rejected: {e}")
             return
-        if hint := cam.narrow_hint(stack):
-            self.health.report("frames of fewer bits than mono16", hint)
+        warn_if_narrow(self.health, cam, stack[: cam.height])  # one frame tells: the sequence's first
         header = msg.header
         if wanted["depth"]:
             self.depth_pub.publish(numpy_to_image(rec.depth_mm * np.float32(0.001), header))
