@@ -410,6 +410,74 @@ def nearest_order(carrier, steps, base, step):
     return out
 
 
+# Pixels a side of reconstruct.CompositeDecoder's blocks (why: there); the two passes below are written for it
+BLOCK = 2
+
+
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+def block_phasors(out, fringes):
+    """reconstruct.CompositeDecoder's blocks: per block of BLOCK x BLOCK pixels (a last, partial one where
+    H or W is odd), the sums of out's planes (P, H, W) over its pixels that show fringes, and whether any
+    does."""
+    planes, height, width = out.shape
+    whole = width // 2
+    sums = np.zeros((planes, -(-height // 2), -(-width // 2)), np.float32)
+    shown = np.zeros(sums.shape[1:], np.bool_)
+    weight = np.empty(width, np.float32)
+    for r in range(height):
+        lit = fringes[r]
+        for c in range(width):
+            weight[c] = np.float32(1) if lit[c] else np.float32(0)
+        for p in range(planes):
+            row, row_sums = out[p, r], sums[p, r // 2]
+            for b in range(whole):
+                row_sums[b] += row[2 * b] * weight[2 * b] + row[2 * b + 1] * weight[2 * b + 1]
+            if width % 2:
+                row_sums[whole] += row[width - 1] * weight[width - 1]
+        row_shown = shown[r // 2]
+        for b in range(whole):
+            row_shown[b] |= lit[2 * b] | lit[2 * b + 1]
+        if width % 2:
+            row_shown[whole] |= lit[width - 1]
+    return sums, shown
+
+
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+def block_depth(out, absolute, confidence, fringes, code_planes, intercepts, rates, max_miss, ca, cb, da, db):
+    """reconstruct.CompositeDecoder's last step, per pixel: its carrier phase (the angle of out's first
+    two planes) at the order nearest its block's absolute phase (NaN where the block has none), through
+    the rational model (depth = (ca + cb phi) / (da + db phi)), and its block's confidence; both NaN where
+    the pixel shows no fringes. Also that absolute phase (phi), and whether the pixel's own codes (out's
+    planes code_planes and the one after each, in the order of intercepts and rates) miss the code
+    phases it predicts (intercept + rate phi) by more than max_miss (root sum of squares)."""
+    height, width = fringes.shape
+    depth = np.empty((height, width), np.float32)
+    sure = np.empty((height, width), np.float32)
+    taken = np.empty((height, width), np.float32)
+    unfit = np.empty((height, width), np.bool_)
+    nan, most = np.float32(np.nan), np.float32(max_miss * max_miss)
+    block_phase, block_confidence = np.empty(width, np.float32), np.empty(width, np.float32)
+    miss = np.empty(width, np.float32)
+    for r in range(height):
+        for c in range(width):  # the row's blocks, pixel by pixel: the loops below then vectorize
+            block_phase[c], block_confidence[c] = absolute[r // 2, c // 2], confidence[r // 2, c // 2]
+        for c in range(width):
+            phase = _angle(out[0, r, c], out[1, r, c])
+            phi = phase + _TWO_PI * np.float32(np.rint((block_phase[c] - phase) * _INV_TWO_PI))
+            taken[r, c] = phi
+            z = (ca[r, c] + cb[r, c] * phi) / (da[r, c] + db[r, c] * phi)
+            depth[r, c] = z if fringes[r, c] else nan
+            sure[r, c] = block_confidence[c] if fringes[r, c] else nan
+            miss[c] = 0
+        for k in range(code_planes.shape[0]):
+            num, den, a, b = out[code_planes[k], r], out[code_planes[k] + 1, r], intercepts[k, r], rates[k, r]
+            for c in range(width):
+                miss[c] += _wrapped_square(_angle(num[c], den[c]) - a[c] - b[c] * taken[r, c])
+        for c in range(width):
+            unfit[r, c] = miss[c] > most
+    return depth, sure, taken, unfit
+
+
 @numba.njit(nogil=True, error_model="numpy", cache=True)
 def label_counts(labels, count, marked):
     """The pixels marked (a mask) of each label 0 .. count - 1 (cv2.connectedComponents' labels)."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -210,9 +211,16 @@ class PspReconstructor:
 BAND_HALO = 8
 
 
-# The composite's confidence is a vote over this window (pixels): on the composite set's validation
-# split 9 gave the most coverage within 0.5% silent errors (15 a little less, 5 let more errors through).
-VOTE_WINDOW = 9
+# The composite decoder names fringe orders on blocks of fused.BLOCK x fused.BLOCK pixels (2: the composite
+# network's own stride): a code grating's phase changes over tens of pixels and the carrier's over one period
+# (9 px in the default rig), so a block's summed phasors name its order as its pixels would, for a quarter of
+# the work; each pixel's own carrier phase then takes the order nearest its block's absolute phase
+# (docs/single-shot.md, orders on blocks).
+# The composite's confidence is a vote over VOTE_WINDOW blocks (14 px), its orders checked against the median
+# of MEDIAN_WINDOW blocks (10 px) around each, taken twice: on the composite set's validation split, with the
+# shipped network and card, the windows that gave as many pixels as the per-pixel windows of 9 and 5 px did
+# with no more errors (92.1% given; a vote over 5 blocks gave 0.3 point more with more errors, over 9 0.1 less)
+VOTE_WINDOW, MEDIAN_WINDOW = 7, 5
 # The decoder's diagnostics of its rig (min_separation, row_fit_error) look at every GRID_STEP-th pixel
 # of every GRID_STEP-th row: both vary smoothly across the image.
 GRID_STEP = 8
@@ -229,21 +237,54 @@ def steps_16(low: np.ndarray, high: np.ndarray, spare: float) -> tuple[float, fl
 
 
 def median_16_steps(phase: np.ndarray, base: float, step: float) -> np.ndarray:
-    """cv2.medianBlur(phase, 5) as 16-bit steps, phase quantized as (phase - base) / step: quantizing
-    keeps the phases' order, so the median of the steps is the median's step (base + steps x step)."""
+    """cv2.medianBlur(phase, MEDIAN_WINDOW) as 16-bit steps, phase quantized as (phase - base) / step:
+    quantizing keeps the phases' order, so the median of the steps is the median's step (base + steps x step)."""
     steps = cv2.addWeighted(phase, 1 / step, phase, 0, -base / step, dtype=cv2.CV_16U)
-    return cv2.medianBlur(steps, 5)
+    return cv2.medianBlur(steps, MEDIAN_WINDOW)
 
 
 def median_16(phase: np.ndarray, base: float, step: float) -> np.ndarray:
-    """cv2.medianBlur(phase, 5) within step / 2 (median_16_steps)."""
+    """cv2.medianBlur(phase, MEDIAN_WINDOW) within step / 2 (median_16_steps)."""
     steps = median_16_steps(phase, base, step)
     return cv2.addWeighted(steps, step, steps, 0, base, dtype=cv2.CV_32F)
+
+
+def block_means(x: np.ndarray) -> np.ndarray:
+    """A map (H, W) averaged over CompositeDecoder's blocks (fused.BLOCK pixels a side; a last, partial
+    block where H or W is odd: its pixels' mean)."""
+    b, (height, width) = fused.BLOCK, x.shape
+    padded = np.full((-(-height // b) * b, -(-width // b) * b), np.nan, np.float32)
+    padded[:height, :width] = x
+    return np.nanmean(padded.reshape(padded.shape[0] // b, b, -1, b), axis=(1, 3)).astype(np.float32)
+
+
+class CodeMaps(NamedTuple):
+    """CompositeDecoder's maps of one grid (the image's pixels, or its blocks): per code in the decoder's
+    code_order (K, H, W) the intercept, rate and spacing of its predicted phase in the carrier phase;
+    the lowest candidate's carrier phase, the working range's (low, high, with half an order to spare),
+    and the coarse code's turn (rad of carrier phase)."""
+
+    intercepts: np.ndarray
+    rates: np.ndarray
+    spacings: np.ndarray
+    lowest: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    turn: np.ndarray
+
+    def on_blocks(self) -> CodeMaps:
+        """The same maps on CompositeDecoder's blocks."""
+        return CodeMaps(*(np.stack([block_means(m) for m in a]) if a.ndim == 3 else block_means(a) for a in self))
 
 
 class CompositeDecoder:
     """The composite pattern's phases (the carrier's and each code grating's) -> depth, for a
     calibration with code models.
+
+    The orders are named on blocks of 2 x 2 pixels (fused.BLOCK), each with the sums of its pixels'
+    phasors where they show fringes; each pixel's own carrier phase then takes the
+    order nearest its block's absolute phase, and the rational model turns that into depth. Below,
+    "pixel" is a block of that grid, windows are in blocks, and min_surface_px counts the image's pixels.
 
     Each pixel's carrier order is one of K consecutive orders that span the calibration's working
     range (with equal slack at both ends; K the coarsest code's orders). A code's phase is
@@ -254,16 +295,16 @@ class CompositeDecoder:
     coarse code first, as temporal unwrapping does with frequencies.
     min_separation is how close the codes of two orders of the working range come on this rig (rad,
     the root sum of squares over the codes): the margin every decision has is about half of it. Both
-    are taken on a grid of pixels (GRID_STEP).
+    are taken on a grid of the image's pixels (GRID_STEP).
 
     One pixel's code is noisy; a surface's is not: its absolute phase is smooth, and a wrong order is
-    2 pi off. A pixel keeps its order only where it is the order nearest the median phase of the 5 x 5
-    pixels around it (taken twice). Its confidence is the lesser of two votes: the share of the
-    pixels in the VOTE_WINDOW around it that keep their order so, and the share of its surface's
-    (order_surfaces: the pixels joined to it through neighbours whose absolute phases differ by less
-    than pi) that do; a surface with fewer than min_surface_px pixels whose codes name an order, or a
-    pixel beside a step, has none. A patch of wrong orders inside a surface is cut off by the 2 pi
-    steps around it and judged on its own codes; a wrong patch whose codes agree with it needs
+    2 pi off. A pixel keeps its order only where it is the order nearest the median phase of the
+    MEDIAN_WINDOW x MEDIAN_WINDOW pixels around it (taken twice). Its confidence is the lesser of two
+    votes: the share of the pixels in the VOTE_WINDOW around it that keep their order so, and the share
+    of its surface's (order_surfaces: the pixels joined to it through neighbours whose absolute phases
+    differ by less than pi) that do; a surface with fewer than min_surface_px pixels whose codes name an
+    order, or a pixel beside a step, has none. A patch of wrong orders inside a surface is cut off by
+    the 2 pi steps around it and judged on its own codes; a wrong patch whose codes agree with it needs
     min_surface_px of them.
     A pixel whose codes name no order at all (too noisy to fit any candidate within the margin) takes
     the order nearest its neighbourhood's median phase where that lies in the working range and at
@@ -278,10 +319,10 @@ class CompositeDecoder:
     drift), so a surface nearer or farther than the range names wrong orders inside it on bands of
     pixels, between bands whose codes name none. Of the pixels whose codes name no order of the range,
     those whose codes fit an order outside it (outside_phase) that their neighbours' fit too (within pi
-    of the 5 x 5 median) lie on a surface outside the range: a pixel where more than max_outside of the
-    pixels with fringes around it (outside_share) do has confidence 0. Codes too noisy to name an order
-    fit scattered orders outside it, which their neighbours' seldom share.
-    After each call: outside_range, the share of the pixels with fringes whose codes named no order
+    of the median around them) lie on a surface outside the range: a pixel where more than max_outside
+    of the pixels with fringes around it (outside_share) do has confidence 0. Codes too noisy to name an
+    order fit scattered orders outside it, which their neighbours' seldom share.
+    After each call: outside_range, the share of the blocks with fringes whose codes named no order
     of the working range (a scene too near or too far, or codes too noisy to tell); striped and beyond,
     the shares refused for their stripes and for lying on surfaces outside the range.
     """
@@ -318,6 +359,7 @@ class CompositeDecoder:
         # each code's row phase along the window, a straight line in the carrier phase per pixel (least squares)
         t = np.arange(orders + 1) - orders / 2
         self.code_order = sorted(range(len(COMPOSITE_CODES)), key=lambda i: -COMPOSITE_CODES[i][0])  # coarse first
+        self.code_planes = np.array([2 + 2 * i for i in self.code_order])  # their numerators in a network's output
         terms, self.row_fit_error = [], 0.0  # per code in code_order: (intercept, rate, spacing)
         row = self._rows(calibration, u, v)
         on_grid = (slice(None, None, GRID_STEP),) * 2
@@ -336,28 +378,36 @@ class CompositeDecoder:
             )
             rate = slope + 1 / COMPOSITE_CODES[i][0]  # d(predicted code) / d(carrier phase)
             terms.append((intercept, rate, TWO_PI * rate))
-        self.code_terms = [np.stack(maps).astype(np.float32) for maps in zip(*terms)]  # (K, H, W) each
-        self.lowest = lowest.astype(np.float32)
-        # the candidates' phases: inside the working range, with half an order to spare at each end
-        self.low = (np.minimum(ends[0], ends[1]) - np.pi).astype(np.float32)
-        self.high = (np.maximum(ends[0], ends[1]) + np.pi).astype(np.float32)
         self.min_separation = self._separation(grid, *(e[on_grid] for e in ends))
-        # the coarse code's turn per pixel (rad of carrier phase), and the turns of it that hold the orders of
-        # every depth from half the near end of the range to infinity (where the phase converges)
-        self.turn = (TWO_PI * TWO_PI / self.code_terms[2][0]).astype(np.float32)
-        turns = [(calibration.model.phase_at_depth(z, u, v) - lowest) / self.turn for z in (near / 2, 1e9)]
+
+        # the candidates' phases: inside the working range, with half an order to spare at each end; the
+        # coarse code's turn per pixel (rad of carrier phase)
+        low, high = np.minimum(ends[0], ends[1]) - np.pi, np.maximum(ends[0], ends[1]) + np.pi
+        turn = TWO_PI * TWO_PI / terms[0][2]
+        maps = [*(np.stack(m) for m in zip(*terms)), lowest, low, high, turn]
+        self.pixel_maps = CodeMaps(
+            *(np.ascontiguousarray(np.broadcast_to(m, m.shape[:-2] + cam.shape), np.float32) for m in maps)
+        )
+        self.block_maps = self.pixel_maps.on_blocks()
+        # the turns of the coarse code that hold the orders of every depth from half the near end of the range
+        # to infinity (where the phase converges)
+        turns = [(calibration.model.phase_at_depth(z, u, v) - lowest) / turn for z in (near / 2, 1e9)]
         self.outside_turns = np.arange(np.floor(np.nanmin(turns)), np.ceil(np.nanmax(turns)), dtype=np.int64)
-        self.terms = depth_terms(calibration)
-        # the phases' 5 x 5 median in 16 bits (median_16), a third of float32's time: every phase the median
+        self.terms = depth_terms(calibration)  # per pixel
+        # the phases' median in 16 bits (median_16), a third of float32's time: every phase the median
         # sees (0 where no fringes, a turn either side of the range) in 65536 steps (about 0.01 rad); the
         # orders outside the range likewise (a finer code can move one 3 orders past its turn's window:
         # 0.03 rad steps in the default rig)
-        self.median_steps = steps_16(self.low, self.high, 2 * TWO_PI)
-        first, last = (self.lowest + self.turn * t for t in (self.outside_turns[0], self.outside_turns[-1] + 1))
+        self.median_steps = steps_16(low, high, 2 * TWO_PI)
+        first, last = (lowest + turn * t for t in (self.outside_turns[0], self.outside_turns[-1] + 1))
         self.outside_steps = steps_16(np.minimum(first, last), np.maximum(first, last), 4 * TWO_PI)
 
+    def maps(self, shape) -> CodeMaps:
+        """The maps of the grid of that shape: the image's pixels or its blocks."""
+        return self.pixel_maps if shape == self.pixel_maps.lowest.shape else self.block_maps
+
     def nearest_median(self, carrier: np.ndarray, phase: np.ndarray) -> np.ndarray:
-        """The absolute phase of each pixel's order nearest the 5 x 5 median of phase around it
+        """The absolute phase of each pixel's order nearest the median of phase around it
         (median_16's steps, turned into phase in the same pass)."""
         base, step = self.median_steps
         return fused.nearest_order(carrier, median_16_steps(phase, base, step), base, step)
@@ -401,9 +451,10 @@ class CompositeDecoder:
         a surface outside the working range says NaN, not the nearest order inside (with exact codes:
         every pixel of planes from 50 mm before the range to 100 mm beyond it, in the default rig;
         further out the codes begin to repeat). Per pixel in one compiled pass (fused.code_phase)."""
+        m = self.maps(carrier.shape)
         ordered = np.stack([codes[i] for i in self.code_order])
         return fused.code_phase(
-            carrier, ordered, *self.code_terms, self.lowest, self.low, self.high, self.min_separation / 2
+            carrier, ordered, m.intercepts, m.rates, m.spacings, m.lowest, m.low, m.high, self.min_separation / 2
         )
 
     def outside_phase(self, carrier: np.ndarray, codes: list[np.ndarray], where: np.ndarray) -> np.ndarray:
@@ -411,6 +462,7 @@ class CompositeDecoder:
         range that their codes fit best within code_phase's margin: its candidates a turn of the coarse
         code further each time through outside_turns (the orders of every depth from half the range's
         near end on), one per turn (fused.outside_phase). NaN where none fits."""
+        m = self.maps(carrier.shape)
 
         def flat(a):  # a map (or a stack of maps) as rows of pixels, not copied
             return a.reshape(*a.shape[:-2], -1)
@@ -419,8 +471,7 @@ class CompositeDecoder:
             where,
             flat(carrier),
             np.stack([flat(codes[i]) for i in self.code_order]),
-            *(flat(t) for t in self.code_terms),
-            *(flat(a) for a in (self.lowest, self.turn, self.low, self.high)),
+            *(flat(a) for a in (m.intercepts, m.rates, m.spacings, m.lowest, m.turn, m.low, m.high)),
             self.outside_turns,
             self.min_separation / 2,
         )
@@ -429,7 +480,7 @@ class CompositeDecoder:
         """Pixels among the surfaces outside the working range: where more than max_outside of the pixels
         with fringes around them (outside_share) are pixels of unsure (flat indices of those whose codes
         name no order of the range) whose codes fit an order outside it within pi of the median of the
-        5 x 5 pixels' fits around them (0 where none)."""
+        fits around them (0 where none)."""
         outside = np.zeros(carrier.shape, np.float32)
         fit = self.outside_phase(carrier, codes, unsure)
         found = np.isfinite(fit)
@@ -438,7 +489,7 @@ class CompositeDecoder:
         median = median_16(outside, *self.outside_steps).ravel()[unsure]
         agreeing = np.zeros(carrier.shape, bool)
         np.put(agreeing, unsure[np.abs(fit - median) < np.pi], True)
-        return outside_share(agreeing, fringes) > self.max_outside
+        return outside_share(agreeing, fringes, OUTSIDE_BLOCK // fused.BLOCK) > self.max_outside
 
     def range_warning(self) -> str | None:
         """After a call: what to say where more than OUTSIDE_WARNING of the pixels with fringes named no
@@ -469,13 +520,47 @@ class CompositeDecoder:
         """out: (2 + 2 x codes, H, W) the carrier's numerator and denominator, then each code's; fringes:
         the pixels that show fringes (default all); sidebands: code_sidebands of the fringe image out
         was read from (without them, no stripes rule). Returns (depth mm, confidence), NaN where unknown."""
-        carrier, *codes = (
-            cv2.phase(np.ascontiguousarray(den, np.float32), np.ascontiguousarray(num, np.float32))
-            for num, den in zip(out[0::2], out[1::2])
-        )
-        own = self.code_phase(carrier, codes)
+        out = np.ascontiguousarray(out, np.float32)
         if fringes is None:
-            fringes = np.ones(carrier.shape, bool)
+            fringes = np.ones(out.shape[1:], bool)
+        # a block's phasors: the sums of its pixels' that show fringes (of a phasor, only the angle counts)
+        phasors, shown = fused.block_phasors(out, fringes)
+        if sidebands is not None:  # smooth (a window of about 24 px): its value at each block's corner
+            sidebands = sidebands[:: fused.BLOCK, :: fused.BLOCK]
+        absolute, confidence = self.block_orders(list(phasors), min_confidence, shown, sidebands)
+        m = self.pixel_maps
+        depth, confidence, taken, unfit = fused.block_depth(
+            out,
+            absolute,
+            confidence,
+            fringes,
+            self.code_planes,
+            m.intercepts,
+            m.rates,
+            self.min_separation / 2,
+            *self.terms,
+        )
+        # a pixel whose own codes name another order than its block's (one across a step from most of its block) is
+        # refused; codes that fit the block's within the decisions' margin name no other, so only the others are asked
+        where = np.flatnonzero(unfit & fringes)
+        other = np.abs(self.pixel_code_phase(out, where) - taken.ravel()[where]) >= np.pi  # not where they name none
+        depth.ravel()[where[other]] = np.nan
+        return depth, confidence
+
+    def pixel_code_phase(self, out: np.ndarray, where: np.ndarray) -> np.ndarray:
+        """code_phase at the image's pixels where (flat indices), from out's phasors there."""
+        phasors = out.reshape(len(out), -1)[:, where]
+        carrier, *codes = (np.arctan2(num, den)[None] for num, den in zip(phasors[0::2], phasors[1::2]))
+        maps = [a.reshape(*a.shape[:-2], 1, -1)[..., where] for a in self.pixel_maps[:-1]]  # (.., 1, n): a row
+        ordered = np.stack([codes[i] for i in self.code_order])
+        return fused.code_phase(carrier, ordered, *maps, self.min_separation / 2)[0]
+
+    def block_orders(
+        self, phasors: list, min_confidence: float, fringes: np.ndarray, sidebands: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """__call__ on the blocks' grid: (absolute carrier phase, NaN where unknown; confidence)."""
+        carrier, *codes = (cv2.phase(den, num) for num, den in zip(phasors[0::2], phasors[1::2]))
+        own = self.code_phase(carrier, codes)
         ordered = fringes & np.isfinite(own)  # own is NaN where the codes name an order out of range
         shown = np.count_nonzero(fringes)
         self.outside_range = (shown - np.count_nonzero(ordered)) / max(shown, 1)
@@ -490,7 +575,8 @@ class CompositeDecoder:
         if np.isfinite(self.max_outside) and unsure.size:
             beyond = self.beyond_range(carrier, codes, unsure, fringes)
         order = local.ravel()[unsure]
-        inside = (order >= self.low.ravel()[unsure]) & (order <= self.high.ravel()[unsure])
+        low, high = self.block_maps.low.ravel()[unsure], self.block_maps.high.ravel()[unsure]
+        inside = (order >= low) & (order <= high)
         adopted = unsure[inside & (vote.ravel()[unsure] >= ADOPTION_VOTE)]
         np.put(own, adopted, local.ravel()[adopted])
         np.put(ordered, adopted, True)
@@ -500,7 +586,7 @@ class CompositeDecoder:
         share = (agreeing / np.maximum(size, 1)).astype(np.float32)
         share[0] = 0  # label 0: beside a step, on no surface
         coded = size - np.bincount(surface.ravel()[adopted], minlength=size.size)  # adopted pixels make no surface
-        share[coded < self.min_surface_px] = 0
+        share[coded * fused.BLOCK**2 < self.min_surface_px] = 0
         self.striped = 0.0
         if sidebands is not None and np.isfinite(self.max_sideband):
             striped = np.bincount(surface[sidebands >= self.max_sideband], minlength=size.size) > size / 2
@@ -510,11 +596,8 @@ class CompositeDecoder:
         confidence = np.minimum(vote, np.take(share, surface))
         confidence[beyond] = 0
         self.beyond = np.count_nonzero(beyond & agree) / max(shown, 1)  # the orders it took away
-        np.copyto(confidence, np.float32(np.nan), where=~fringes)
-        ca, cb, da, db = self.terms
-        depth = (ca + cb * own) / (da + db * own)
-        np.copyto(depth, np.float32(np.nan), where=~(agree & (confidence >= min_confidence)) | beyond)
-        return depth, confidence
+        np.copyto(own, np.float32(np.nan), where=~(agree & (confidence >= min_confidence)) | beyond)
+        return own, confidence
 
 
 # more than this share of the pixels with fringes naming no order of the working range: the scene, or part of
@@ -533,11 +616,11 @@ BEYOND_WARNING = 0.01
 OUTSIDE_BLOCK, OUTSIDE_WINDOW = 8, 15
 
 
-def outside_share(outside: np.ndarray, fringes: np.ndarray) -> np.ndarray:
-    """Per pixel, the share of the pixels with fringes in the window around it (OUTSIDE_WINDOW blocks)
-    that are pixels of outside (a mask); taken on blocks and resized back."""
+def outside_share(outside: np.ndarray, fringes: np.ndarray, block: int = OUTSIDE_BLOCK) -> np.ndarray:
+    """Per pixel, the share of the pixels with fringes in the window around it (OUTSIDE_WINDOW blocks of
+    block pixels) that are pixels of outside (a mask); taken on blocks and resized back."""
     height, width = fringes.shape
-    small = (max(width // OUTSIDE_BLOCK, 1), max(height // OUTSIDE_BLOCK, 1))
+    small = (max(width // block, 1), max(height // block, 1))
     sums = [
         cv2.boxFilter(
             cv2.resize(mask.astype(np.float32), small, interpolation=cv2.INTER_AREA),

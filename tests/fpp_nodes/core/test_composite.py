@@ -64,8 +64,9 @@ def test_each_pixel_names_its_order_with_code_errors_inside_the_margin(rig, patt
 @pytest.mark.parametrize("family", FAMILY_NAMES)
 def test_exact_phases_decode_to_the_exact_depth_on_every_family(rig, patterns, calibration, family):
     """Given the true phases, the code picks the right order at every lit pixel: what is left is the
-    calibration's error (< 0.05 mm), never an order (9-17 mm); only pixels at a step (whose
-    neighbourhood is mostly the other surface) say NaN."""
+    calibration's error (< 0.05 mm), never an order (9-17 mm); only pixels at a step or a shadow (whose
+    neighbourhood is mostly the other surface, or whose block straddles it) say NaN: of those farther than
+    3 px from one, 99.96-100% are given (measured), of all lit pixels 96.7-100%."""
     decoder = CompositeDecoder(calibration)
     scene_rig = random_rig(np.random.default_rng(3), rig)
     scene = make_scene(scene_rig, family, 3)
@@ -74,7 +75,15 @@ def test_exact_phases_decode_to_the_exact_depth_on_every_family(rig, patterns, c
     depth, confidence = decoder(as_network_output(*exact_phases(renderer, patterns)), 0.5, lit)
     given = np.isfinite(depth)
     assert not (given & ~lit).any() and np.abs(depth - scene.depth_mm)[given].max() < 0.05
-    assert given.sum() > 0.97 * lit.sum() and np.median(confidence[lit]) > 0.99
+    steps = [np.abs(np.diff(scene.depth_mm, axis=axis)) > 2.0 for axis in (0, 1)]
+    at_step = ~lit
+    for axis, step in enumerate(steps):
+        ahead, behind = [slice(None)] * 2, [slice(None)] * 2
+        ahead[axis], behind[axis] = slice(1, None), slice(None, -1)
+        at_step[tuple(ahead)] |= step
+        at_step[tuple(behind)] |= step
+    far = lit & (cv2.distanceTransform((~at_step).view(np.uint8), cv2.DIST_L2, 3) > 3)
+    assert given[far].mean() > 0.999 and given.sum() > 0.96 * lit.sum() and np.median(confidence[lit]) > 0.99
 
 
 def test_a_rig_at_another_standoff_decodes_in_its_own_working_range(near_rig, near_calibration):
@@ -181,9 +190,10 @@ def test_a_surface_where_the_codes_repeat_is_refused_by_the_codes_around_it(rig,
 
 
 def test_a_surface_outvotes_scattered_order_errors_and_a_code_of_noise_is_nan(rig, patterns, calibration):
-    """A fifth of the pixels' codes point at a wrong order (1-5 orders off): the neighbourhood outvotes
-    every one (NaN) and keeps the rest. A code that carries nothing (uniform noise) gets no vote: NaN,
-    never a guess."""
+    """A fifth of the pixels' codes point at a wrong order (1-5 orders off): each is refused (NaN) and
+    90% of the rest kept (93% measured: a block sums such a pixel's codes with its neighbours', and the
+    neighbourhood outvotes the blocks they move). A code that carries nothing (uniform noise) gets no
+    vote: NaN, never a guess."""
     decoder = CompositeDecoder(calibration)
     renderer = SceneRenderer(rig, plane_scene(rig, 1150.0))
     carrier, codes = exact_phases(renderer, patterns)
@@ -191,7 +201,7 @@ def test_a_surface_outvotes_scattered_order_errors_and_a_code_of_noise_is_nan(ri
     wrong = rng.random(carrier.shape) < 0.2
     noisy = orders_off(codes, wrong * rng.integers(1, 6, carrier.shape))
     depth, confidence = decoder(as_network_output(carrier, noisy), 0.5)
-    assert not np.isfinite(depth[wrong]).any() and np.isfinite(depth[~wrong]).mean() > 0.99
+    assert not np.isfinite(depth[wrong]).any() and np.isfinite(depth[~wrong]).mean() > 0.9
     assert np.nanmax(np.abs(depth - 1150.0)) < 0.05
     noise = [rng.uniform(0, 2 * np.pi, carrier.shape) for _ in codes]
     depth, confidence = decoder(as_network_output(carrier, noise), 0.5)
@@ -432,30 +442,42 @@ def test_a_wrong_order_is_half_an_orders_depth_at_the_near_end(calibration):
 
 
 def test_a_pixel_whose_codes_name_no_order_takes_its_neighbourhoods_and_makes_no_surface(rig, patterns, calibration):
-    """Codes of noise on a tenth of a plane's pixels: about half of them fit no order (code_phase NaN),
-    and where three quarters of the window keeps its own order such a pixel takes the neighbourhood's,
-    the exact depth (the others name a wrong order and are outvoted); in the middle of a 30 x 30 patch
-    of noise nothing is adopted (NaN). Adopted pixels count toward no surface's size: a
+    """Codes of noise on a tenth of a plane's blocks: about half of them fit no order (code_phase NaN),
+    and where three quarters of the window keeps its own order such a block takes the neighbourhood's,
+    the exact depth, and so do its pixels whose own codes name no order either (the others name a wrong
+    order and are outvoted); in the middle of a 30 x 30 patch
+    of noise nothing is adopted (NaN). Adopted blocks count toward no surface's size: a
     50 x 50 patch an order off with noise codes on 15% of it (fewer than 2200 pixels inside its border
     name an order, more with those adopted) stays NaN with min_surface_px 2200 (counting the adopted
     toward its size gave 2080 pixels an order off), and is given, an order off, with 1500."""
     renderer = SceneRenderer(rig, plane_scene(rig, 1150.0))
     carrier, codes = exact_phases(renderer, patterns)
     rng = np.random.default_rng(0)
-    unsure = rng.random(carrier.shape) < 0.1
+
+    def blocks(values):  # drawn per block of the decoder's grid
+        return np.kron(values[::2, ::2], np.ones((2, 2), values.dtype))
+
+    unsure = blocks(rng.random(carrier.shape) < 0.1)
     patch = np.zeros(carrier.shape, bool)
     patch[100:130, 100:130] = True
-    noise = [np.where(unsure | patch, rng.uniform(0, 2 * np.pi, carrier.shape), code) for code in codes]
+    noise = [np.where(unsure | patch, blocks(rng.uniform(0, 2 * np.pi, carrier.shape)), code) for code in codes]
     decoder = CompositeDecoder(calibration)
-    depth, _ = decoder(as_network_output(carrier, noise), 0.5)
-    none = np.isnan(decoder.code_phase(carrier.astype(np.float32), [c.astype(np.float32) for c in noise]))
-    assert 0.3 < none[unsure].mean() < 0.7 and np.isfinite(depth[none & unsure & ~patch]).mean() > 0.9
+    out = as_network_output(carrier, noise)
+    depth, _ = decoder(out, 0.5)
+    phasors, _ = fused.block_phasors(out, np.ones(carrier.shape, bool))  # what the decoder's blocks read
+    block_carrier, *block_codes = (cv2.phase(den, num) for num, den in zip(phasors[0::2], phasors[1::2]))
+    none = np.kron(np.isnan(decoder.code_phase(block_carrier, block_codes)), np.ones((2, 2), bool))
+    assert 0.3 < none[unsure].mean() < 0.7
+    none &= np.isnan(decoder.code_phase(carrier.astype(np.float32), [c.astype(np.float32) for c in noise]))
+    assert np.isfinite(depth[none & unsure & ~patch]).mean() > 0.9
     assert np.nanmax(np.abs(depth - 1150.0)) < 0.05  # a pixel whose noise fits a wrong order is outvoted
     assert np.isnan(depth[105:125, 105:125]).all()
     wrong = np.zeros(carrier.shape, bool)
     wrong[300:350, 300:350] = True
-    unsure = wrong & (rng.random(carrier.shape) < 0.15)
-    off = [np.where(unsure, rng.uniform(0, 2 * np.pi, carrier.shape), code) for code in orders_off(codes, wrong)]
+    unsure = wrong & blocks(rng.random(carrier.shape) < 0.15)
+    off = [
+        np.where(unsure, blocks(rng.uniform(0, 2 * np.pi, carrier.shape)), code) for code in orders_off(codes, wrong)
+    ]
     out = as_network_output(carrier, off)
     depth, _ = CompositeDecoder(calibration, min_surface_px=2200)(out, 0.5)
     assert np.nanmax(np.abs(depth - 1150.0)) < 0.05 and np.isfinite(depth[~wrong]).mean() > 0.99
