@@ -193,8 +193,11 @@ def unwrap_spatial(wrapped: np.ndarray) -> np.ndarray:
     Correct where the true phase changes by less than pi between neighbouring pixels; height
     discontinuities and shadows break it, as they break every spatial unwrapper.
     """
-    psi = np.asarray(wrapped, np.float64)
-    h, w = psi.shape
+    h, w = np.shape(wrapped)
+    # cv2.dct wants even sizes: an odd side repeats its last row or column, whose differences are then
+    # 0 and consistent with the rest (a zero-padded Poisson right-hand side is not: it was up to 2 pi off)
+    psi = np.pad(np.asarray(wrapped, np.float64), ((0, h % 2), (0, w % 2)), mode="edge")
+    ph, pw = psi.shape
 
     dx = np.zeros_like(psi)
     dy = np.zeros_like(psi)
@@ -204,17 +207,14 @@ def unwrap_spatial(wrapped: np.ndarray) -> np.ndarray:
     rho[:, 1:] -= dx[:, :-1]
     rho += dy
     rho[1:, :] -= dy[:-1, :]
-    ph, pw = h + h % 2, w + w % 2  # cv2.dct wants even sizes
-    padded = np.zeros((ph, pw))
-    padded[:h, :w] = rho
-    rho_hat = cv2.dct(padded)
+    rho_hat = cv2.dct(rho)
     ii = np.arange(ph)[:, None]
     jj = np.arange(pw)[None, :]
     denom = 2.0 * np.cos(np.pi * ii / ph) + 2.0 * np.cos(np.pi * jj / pw) - 4.0
     denom[0, 0] = 1.0
     phi_hat = rho_hat / denom
     phi_hat[0, 0] = 0.0
-    smooth = cv2.idct(phi_hat)[:h, :w]
+    psi, smooth = psi[:h, :w], cv2.idct(phi_hat)[:h, :w]
     return psi + TWO_PI * np.rint((smooth - psi) / TWO_PI)
 
 

@@ -115,6 +115,22 @@ def test_a_camera_with_lens_distortion_decodes_through_its_ideal_pixels():
     assert np.abs(depth - scene.depth_mm)[given].max() < 0.05 and given.sum() > 0.95 * lit.sum()
 
 
+def test_a_camera_of_odd_size_calibrates_its_codes_and_decodes():
+    """321 x 241 pixels over the default field (the fine code 4.2 px a period): the code models fit the
+    planes (row_fit_error 0.002 rad measured; 4.7 rad, every decision wrong, while the spatial unwrapping
+    mishandled odd sides) and exact phases decode objects to their exact depth (96.7% of the lit pixels given)."""
+    small = replace(Rig(), width=321, height=241, focal_px=Rig.focal_px * 321 / 640)
+    calibration = simulated_calibration(small, small.pattern_set(), seed=7)[0]
+    decoder = CompositeDecoder(calibration)
+    assert decoder.row_fit_error < 0.05
+    scene = make_scene(small, "objects", 21)
+    renderer = SceneRenderer(small, scene)
+    lit = renderer.lit[renderer.crop]
+    depth, _ = decoder(as_network_output(*exact_phases(renderer, small.pattern_set())), 0.5, lit)
+    given = np.isfinite(depth)
+    assert np.abs(depth - scene.depth_mm)[given].max() < 0.05 and given.sum() > 0.9 * lit.sum()
+
+
 def test_a_surface_outside_the_working_range_is_nan_not_the_nearest_order_inside(rig, patterns, calibration):
     """Planes 10 and 40 mm before the working range and 10 and 80 mm beyond it: their codes name
     orders outside the range, or miss every order inside by more than the decisions' margin, so every

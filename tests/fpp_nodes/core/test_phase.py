@@ -99,9 +99,13 @@ def test_temporal_unwrapping_needs_one_fringe_first():
         unwrap_temporal([np.zeros((2, 2))] * 2, (4, 20))
 
 
-def test_spatial_unwrapping_of_a_smooth_phase_is_exact_up_to_a_constant():
-    v, u = np.mgrid[0:120, 0:161]
-    true = 0.15 * u + 0.002 * (v - 60) ** 2 + 3 * np.sin(u / 30.0)
+@pytest.mark.parametrize("shape", [(120, 160), (120, 161), (121, 160), (121, 161)])
+@pytest.mark.parametrize("slope", [0.15, 1.5])
+def test_spatial_unwrapping_of_a_smooth_phase_is_exact_up_to_a_constant(shape, slope):
+    """Of any size: on odd sides the DCT's even padding once left parts of a phase changing by 1 rad a
+    pixel (a code grating 4 px a period, as a 320x240 camera sees it) 2 pi off."""
+    v, u = np.mgrid[0 : shape[0], 0 : shape[1]]
+    true = slope * v + 0.3 * u + 0.002 * (v - 60) ** 2 + 3 * np.sin(u / 30.0)
     got = unwrap_spatial(np.mod(true, TWO_PI))
     offset = got - true
     assert np.abs(offset - offset[0, 0]).max() < 1e-9
