@@ -135,10 +135,10 @@ def test_bad_poses_are_clear_errors(lens_rig):
 
 
 def test_a_projector_whose_light_ends_inside_the_view_calibrates_its_codes_from_a_board():
-    """The way round what plane calibration refuses (its coarse code's FTP beside the light's edges,
-    test_calibration): from a board the code models come from the projector's geometry, and exact
-    phases decode separated objects with none off by more than 1 mm (measured: 95.9% of the lit pixels
-    given, the 99th percentile 0.09 mm off, the board's depth scale)."""
+    """From a board the code models come from the projector's geometry, whatever FTP reads beside the
+    light's edges (the plane calibration's trouble there: test_calibration), and exact phases decode
+    separated objects with none off by more than 1 mm (measured: 95.9% of the lit pixels given, the 99th
+    percentile 0.09 mm off, the board's depth scale)."""
     from test_composite import as_network_output, exact_phases  # this folder is on the path (no package)
 
     rig = replace(Rig(), projector_field_mm=170.0)
