@@ -83,6 +83,7 @@ GEOMETRIES = {
     "baseline 120 mm": dict(baseline_mm=120.0),
     "projector field 300 mm (fringes 1.36x wider)": dict(projector_field_mm=300.0),
     "camera field 124 mm (fringes 1.25x wider)": dict(focal_px=Rig.focal_px * 1.25),
+    "projector field 170 mm (light ends in view)": dict(projector_field_mm=170.0),
     "a lens: k1 -0.9 (2.3 px of barrel distortion)": dict(distortion=(-0.9, 0.0, 2e-4, -2e-4, 0.0)),
     # the network reads the image resampled to its trained fringe period (DepthModel.use)
     "camera 1280x960, same field (fringes 2x wider)": dict(width=1280, height=960, focal_px=Rig.focal_px * 2),
