@@ -551,9 +551,11 @@ class CompositeDecoder:
         """code_phase at the image's pixels where (flat indices), from out's phasors there."""
         phasors = out.reshape(len(out), -1)[:, where]
         carrier, *codes = (np.arctan2(num, den)[None] for num, den in zip(phasors[0::2], phasors[1::2]))
-        maps = [a.reshape(*a.shape[:-2], 1, -1)[..., where] for a in self.pixel_maps[:-1]]  # (.., 1, n): a row
+        m = self.pixel_maps
+        maps = (m.intercepts, m.rates, m.spacings, m.lowest, m.low, m.high)  # code_phase's, as a row (.., 1, n)
         ordered = np.stack([codes[i] for i in self.code_order])
-        return fused.code_phase(carrier, ordered, *maps, self.min_separation / 2)[0]
+        row = [a.reshape(*a.shape[:-2], 1, -1)[..., where] for a in maps]
+        return fused.code_phase(carrier, ordered, *row, self.min_separation / 2)[0]
 
     def block_orders(
         self, phasors: list, min_confidence: float, fringes: np.ndarray, sidebands: np.ndarray | None
@@ -616,7 +618,7 @@ BEYOND_WARNING = 0.01
 OUTSIDE_BLOCK, OUTSIDE_WINDOW = 8, 15
 
 
-def outside_share(outside: np.ndarray, fringes: np.ndarray, block: int = OUTSIDE_BLOCK) -> np.ndarray:
+def outside_share(outside: np.ndarray, fringes: np.ndarray, block: int) -> np.ndarray:
     """Per pixel, the share of the pixels with fringes in the window around it (OUTSIDE_WINDOW blocks of
     block pixels) that are pixels of outside (a mask); taken on blocks and resized back."""
     height, width = fringes.shape
