@@ -62,7 +62,8 @@ class CnnDepth(Node):
             self,
             "threads",
             NETWORK_THREADS,
-            "onnxruntime intra-op threads (the decoding of earlier frames runs beside them)",
+            "onnxruntime intra-op threads (the decoding of earlier frames runs beside them; 2: lower latency "
+            "where the cores have time to spare, fewer frames at most)",
             True,
         )
         min_confidence = declare(
