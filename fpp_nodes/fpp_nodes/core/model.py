@@ -95,7 +95,7 @@ class DepthModel:
         options = ort.SessionOptions()
         options.intra_op_num_threads = threads
         # no busy-waiting between runs: it took the core cnn_depth's decoding thread needs (threads 2: 62
-        # against 41 ms of CPU a frame), and offline it bought nothing (docs/single-shot.md, the node's speed)
+        # against 43 ms of CPU a frame), and offline it bought nothing (docs/single-shot.md, the node's speed)
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         try:
             self.session = ort.InferenceSession(str(path), options, providers=list(providers))
