@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -36,7 +35,7 @@ from fpp_nodes.nodes.cnn_depth import NETWORK_THREADS
 from fpp_nodes.processes import start_process, stop_process
 
 from machine import describe
-from streamkit import rss_mb
+from streamkit import process_times, process_tree, rss_mb
 
 CAMERA_RATE = 30  # frames/s: the issue's target, a common camera's rate
 
@@ -49,37 +48,6 @@ def timed(fn, n):
         fn()
         times.append(time.perf_counter() - t)
     return np.array(times) * 1000
-
-
-def process_tree(pid: int) -> list[Path]:
-    """/proc of a process and its descendants (a stock `ros2 run` starts the node as its child); those
-    that cannot be read are left out."""
-    procs, todo = [], [pid]
-    while todo:
-        proc = Path(f"/proc/{todo.pop()}")
-        try:
-            tasks = list((proc / "task").iterdir())
-        except OSError:  # gone
-            continue
-        procs.append(proc)
-        for task in tasks:
-            try:
-                todo += [int(c) for c in (task / "children").read_text().split()]
-            except OSError:  # a thread that ended meanwhile: the process stays in the tree
-                continue
-    return procs
-
-
-def process_times(pid: int) -> np.ndarray:
-    """(user s, system s, minor page faults) of a process and its descendants so far."""
-    ticks, total = os.sysconf("SC_CLK_TCK"), np.zeros(3)
-    for proc in process_tree(pid):
-        try:
-            fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()  # from field 3, the state
-        except OSError:
-            continue
-        total += [int(fields[11]) / ticks, int(fields[12]) / ticks, int(fields[7])]
-    return total
 
 
 def resident_mb(pid: int) -> float:

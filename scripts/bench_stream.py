@@ -8,12 +8,14 @@ run it also subscribes to the cloud BEST_EFFORT, to show what that choice would 
 With --single-shot, the single-shot sensor instead: pattern_projector showing the composite alone on
 every tick (single_shot_only), fringe_camera_sim and cnn_depth on its frames, three processes; depth
 images and clouds per second (this robot subscribes to both), stamp to depth image here, and the depth's
-accuracy against the simulator's truth.
+accuracy against the simulator's truth. Both end with the CPU each node process and this robot took
+over the counted seconds (from /proc: Linux), as a share of one core.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -31,7 +33,7 @@ from fpp_nodes.nodes.demo import DemoRobot, per_cloud
 from fpp_nodes.processes import NodeProcesses
 
 from machine import describe
-from streamkit import capture_counts, percentile_header, percentile_row
+from streamkit import capture_counts, percentile_header, percentile_row, process_times
 
 
 def main():
@@ -62,7 +64,7 @@ def main():
         QoSProfile(depth=2, reliability=ReliabilityPolicy.BEST_EFFORT),
     )
     # start counting at the first cloud: every node is up
-    listen(robot, procs, args.seconds, lambda: robot.clouds, (robot.frames, robot.clouds, best_effort))
+    cpu = listen(robot, procs, args.seconds, lambda: robot.clouds, (robot.frames, robot.clouds, best_effort))
     counts = capture_counts(procs.logs("capture_sequence"))
     frames_in, complete, dropped = counts.frames_in, counts.complete, counts.dropped
     rows = per_cloud(robot)
@@ -84,19 +86,27 @@ def main():
         f"\nRMSE of the clouds against ground truth: {np.mean([r['rmse_mm'] for r in rows]):.4f} mm "
         f"(mean of {len(rows)}); node logs in {logs}"
     )
+    print(cpu)
 
 
-def listen(robot, procs: NodeProcesses, seconds: float, ready, counted) -> None:
+def listen(robot, procs: NodeProcesses, seconds: float, ready, counted) -> str:
     """Spin the robot until ready(), empty what it has counted so far (counted), spin it for seconds more; then stop the
-    nodes and ROS, whatever happened."""
+    nodes and ROS, whatever happened. Returns the CPU each node process and this robot took over those seconds."""
     try:
         while not ready():
             rclpy.spin_once(robot, timeout_sec=0.1)
         for got in counted:
             got.clear()
-        end = time.monotonic() + seconds
+        before, own, start = [process_times(p.pid) for _, p, _ in procs.procs], os.times(), time.monotonic()
+        end = start + seconds
         while time.monotonic() < end:
             rclpy.spin_once(robot, timeout_sec=0.05)
+        after, own_after, took = [process_times(p.pid) for _, p, _ in procs.procs], os.times(), time.monotonic() - start
+        shares = [(exe, (a - b)[:2].sum() / took) for (exe, _, _), a, b in zip(procs.procs, after, before)]
+        shares.append(("this robot", (own_after.user + own_after.system - own.user - own.system) / took))
+        return "CPU over those seconds, share of a core (user and system): " + ", ".join(
+            f"{exe} {share:.0%}" for exe, share in shares
+        )
     finally:
         procs.stop()
         robot.destroy_node()
@@ -118,7 +128,7 @@ def single_shot(args, procs: NodeProcesses) -> None:
     clouds = []  # as a robot subscribes: the cloud beside the depth image
     robot.create_subscription(PointCloud2, Topics.POINTS, lambda m: clouds.append(time.time_ns()), Qos.LARGE)
     # start counting at the first of each: every node is up
-    listen(robot, procs, args.seconds, lambda: depths and clouds and truth, (depths, clouds))
+    cpu = listen(robot, procs, args.seconds, lambda: depths and clouds and truth, (depths, clouds))
     truth_mm = image_to_numpy(truth[0]) * 1000.0
     over = ErrorTotals()
     for _, m in depths:
@@ -140,6 +150,7 @@ def single_shot(args, procs: NodeProcesses) -> None:
         f"\nagainst the simulator's truth: RMSE {over.rmse:.3f} mm, {over.coverage:.1%} of the lit pixels, "
         f"{over.share_over:.2%} off by more than 1 mm; node logs in {procs.logs_dir}"
     )
+    print(cpu)
 
 
 if __name__ == "__main__":

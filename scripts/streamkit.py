@@ -1,12 +1,13 @@
-"""What the stream benchmarks share (scripts/bench_stream.py, scripts/soak.py): capture_sequence's
-shutdown counts read back from its log, percentile rows and a process's memory (the nodes are started
-with fpp_nodes.processes).
+"""What the stream benchmarks share (scripts/bench_stream.py, scripts/soak.py, scripts/bench_cnn.py):
+capture_sequence's shutdown counts read back from its log, percentile rows, a process's memory and the
+CPU time of a process and its children (the nodes are started with fpp_nodes.processes).
 
 Run the scripts in the environment of scripts/env.bash; this module is imported from scripts/.
 """
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,3 +61,34 @@ def rss_mb(pid: int) -> float | None:
     except (FileNotFoundError, ProcessLookupError):
         return None
     return None
+
+
+def process_tree(pid: int) -> list[Path]:
+    """/proc of a process and its descendants (a stock `ros2 run` starts the node as its child); those
+    that cannot be read are left out."""
+    procs, todo = [], [pid]
+    while todo:
+        proc = Path(f"/proc/{todo.pop()}")
+        try:
+            tasks = list((proc / "task").iterdir())
+        except OSError:  # gone
+            continue
+        procs.append(proc)
+        for task in tasks:
+            try:
+                todo += [int(c) for c in (task / "children").read_text().split()]
+            except OSError:  # a thread that ended meanwhile: the process stays in the tree
+                continue
+    return procs
+
+
+def process_times(pid: int) -> np.ndarray:
+    """(user s, system s, minor page faults) of a process and its descendants so far."""
+    ticks, total = os.sysconf("SC_CLK_TCK"), np.zeros(3)
+    for proc in process_tree(pid):
+        try:
+            fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()  # from field 3, the state
+        except OSError:
+            continue
+        total += [int(fields[11]) / ticks, int(fields[12]) / ticks, int(fields[7])]
+    return total
