@@ -34,6 +34,7 @@ import torch
 import yaml
 
 from fpp_nodes.core.calibration import Calibration
+from fpp_nodes.core.fused import pixel_shuffle
 from fpp_nodes.core.model import (
     MIN_MODULATION,
     PhaseOrderDecoder,
@@ -41,7 +42,6 @@ from fpp_nodes.core.model import (
     decoded_fringes,
     local_depth,
     network_input,
-    pixel_shuffle,
     trusted_single_shot,
 )
 from fpp_nodes.core.patterns import PatternSet

@@ -14,7 +14,8 @@ import torch
 import yaml
 
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
-from fpp_nodes.core.model import DepthModel, ModelError, default_model_path, pixel_shuffle
+from fpp_nodes.core.fused import pixel_shuffle
+from fpp_nodes.core.model import DepthModel, ModelError, default_model_path
 from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.core.scenes import make_scene

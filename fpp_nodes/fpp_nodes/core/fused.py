@@ -520,6 +520,23 @@ def window_roughness(depth, mean, square_sums, counts):
     return roughness
 
 
+@numba.njit(nogil=True, cache=True)
+def pixel_shuffle(x, r):
+    """torch's PixelShuffle: (C r^2, H, W) -> (C, H r, W r), out[c, h r + i, w r + j] = x[c r^2 + i r + j, h, w]
+    (a third of the time of cv2.merge's interleaving)."""
+    c, h, w = x.shape[0] // (r * r), x.shape[1], x.shape[2]
+    out = np.empty((c, h * r, w * r), x.dtype)
+    for k in range(c):
+        for y in range(h):
+            for i in range(r):
+                row = out[k, y * r + i]
+                for j in range(r):
+                    source = x[(k * r + i) * r + j, y]
+                    for v in range(w):
+                        row[v * r + j] = source[v]
+    return out
+
+
 @numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
 def _steady(z, a, b, c, d, step):
     """z is finite and none of its neighbours a to d is more than step away (_jump)."""

@@ -233,7 +233,7 @@ class DepthModel:
         """outputs' second half: the network's outputs shuffled, cropped to its input and resampled to
         the image's size."""
         w, h = self.input_size
-        out = (pixel_shuffle(raw, self.shuffle) if self.shuffle > 1 else raw)[:, :h, :w]
+        out = (fused.pixel_shuffle(raw, self.shuffle) if self.shuffle > 1 else raw)[:, :h, :w]
         if self.scale != 1.0:
             out = np.stack([cv2.resize(c, self.size, interpolation=cv2.INTER_LINEAR) for c in out])
         return out
@@ -276,17 +276,6 @@ def confident(confidence: np.ndarray, min_confidence: float) -> np.ndarray:
     albedo striped like the codes, too small a surface, a surface outside the working range), which a
     threshold of 0 must not undo."""
     return (confidence >= min_confidence) & (confidence > 0)
-
-
-def pixel_shuffle(x: np.ndarray, r: int) -> np.ndarray:
-    """torch's PixelShuffle: (C r^2, H, W) -> (C, H r, W r), out[c, h r + i, w r + j] = x[c r^2 + i r + j, h, w]
-    (cv2.merge interleaves the columns: half the time of strided copies)."""
-    c, h, w = x.shape[0] // (r * r), x.shape[1], x.shape[2]
-    out = np.empty((c, h, r, w * r), x.dtype)
-    for k in range(c):
-        for i in range(r):  # row i of each tile: its r columns interleaved
-            out[k, :, i] = cv2.merge([x[(k * r + i) * r + j] for j in range(r)]).reshape(h, w * r)
-    return out.reshape(c, h * r, w * r)
 
 
 def network_input(image: np.ndarray) -> np.ndarray:
