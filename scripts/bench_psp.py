@@ -33,6 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "fpp_nodes"))
 from fpp_nodes.core.fused import trusted_points  # noqa: E402
 from fpp_nodes.core.metrics import depth_errors  # noqa: E402
+from fpp_nodes.core.phase import blur_variance  # noqa: E402
 from fpp_nodes.core.reconstruct import PspReconstructor, multi_frequency_phase  # noqa: E402
 from fpp_nodes.core.scenes import make_scene  # noqa: E402
 from fpp_nodes.core.simulation import Rig, render  # noqa: E402
@@ -54,19 +55,25 @@ def timed(fn, repeat):
 def stage_table(psp: PspReconstructor, images: np.ndarray, repeat: int) -> None:
     """The multi-shot path's stages, each timed alone on the whole image in one thread."""
     patterns, limits = psp.calibration.patterns, psp.limits
-    phase, valid, _, noise = multi_frequency_phase(images, patterns, limits)
+    phase, valid, modulation, noise, coarser = multi_frequency_phase(images, patterns, limits)
     height, width = phase.shape
     out = (np.empty_like(phase), np.empty_like(phase), np.empty_like(valid), np.empty((height, width, 3), np.float32))
-    limits_mm = np.array([limits.max_depth_noise_mm, limits.max_depth_step_mm])
+    limits_mm = np.array([limits.max_depth_noise_mm, limits.max_depth_step_mm, limits.max_depth_bias_mm])
+    ratio = patterns.frequencies[-1] / patterns.frequencies[-2]
+    blur = blur_variance(phase, modulation, coarser, ratio, valid)
     stages = [
         (
             f"{len(patterns.frequencies)} phases, unwrapping, checks (compiled pass 1), phase noise",
             lambda: multi_frequency_phase(images, patterns, limits),
         ),
         (
-            "depth, depth noise, trust rules, XYZ (compiled pass 2)",
+            "the frame's blur (median over every 8th pixel of every 8th row)",
+            lambda: blur_variance(phase, modulation, coarser, ratio, valid),
+        ),
+        (
+            "depth, depth noise, defocus bias, trust rules, XYZ (compiled pass 2)",
             lambda: trusted_points(
-                phase, noise, valid, 0, 0, height, psp._terms, psp._slope, *psp._rays, limits_mm, out
+                phase, noise, coarser, valid, 0, 0, height, psp._terms, psp._slope, *psp._rays, blur, limits_mm, out
             ),
         ),
     ]

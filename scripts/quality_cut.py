@@ -1,10 +1,13 @@
-"""Which pixels the multi-shot path keeps: the old cut (fringe modulation B at least 5% of full scale)
-against the expected depth noise (phase noise from the residual of the N-step fit, through dz/dphi;
-QualityLimits.max_depth_noise_mm), on bright, dark, checkered and striped scenes at the default rig.
+"""Which pixels the multi-shot path keeps, on bright, dark, checkered and striped scenes: the old cut
+(fringe modulation B at least 5% of full scale) against the expected depth noise (phase noise from
+the residual of the N-step fit, through dz/dphi; QualityLimits.max_depth_noise_mm) at the default
+rig; then, at a camera blur of 0.5 (the default rig's), 1 and 1.5 px, the limit on the defocus bias
+(the depth a blurred albedo edge moves a pixel by, phase.defocus_phase_bias;
+QualityLimits.max_depth_bias_mm).
 
-    python scripts/quality_cut.py            # the sweep on validation scenes, then before/after on others
+    python scripts/quality_cut.py            # each sweep on validation scenes, then before/after on others
 
-The sweep runs on validation seeds (where the default was chosen); the before/after table on other
+The sweeps run on validation seeds (where the defaults were chosen); the before/after tables on other
 seeds. Errors are against the simulator's exact depth: RMSE, coverage of the lit pixels, and the share
 of kept pixels off by more than 1 mm, outside edges and at them (edge: within EDGE_PX of an unlit pixel,
 of a depth step of more than 2 mm or of an albedo step of more than 2x, where defocus mixes two
@@ -30,6 +33,7 @@ from fpp_nodes.core.simulation import Rig, render  # noqa: E402
 OLD_MIN_MODULATION = 0.05  # the cut before issue 12, fraction of full scale
 EDGE_PX = 3
 VALIDATION_SEEDS, REPORT_SEEDS = (2000, 2001), (3000, 3001)
+BLURS_PX = (0.5, 1.0, 1.5)
 
 
 def variants(scene):
@@ -44,12 +48,12 @@ def variants(scene):
     yield "striped", replace(scene, albedo=np.where(stripes, scene.albedo * 0.15, scene.albedo))
 
 
-def kept_depth(psp: PspReconstructor, images, max_noise_mm: float | None):
-    """Depth by the multi-shot path with the noise cut (mm), or with the old modulation cut (None)."""
+def kept_depth(psp: PspReconstructor, images, limits: QualityLimits | None):
+    """Depth by the multi-shot path under these limits (mm), or with the old modulation cut (None)."""
     calibration = psp.calibration
-    if max_noise_mm is not None:
-        return PspReconstructor(calibration, QualityLimits(max_depth_noise_mm=max_noise_mm))(images).depth_mm
-    phase, valid, modulation, _ = multi_frequency_phase(images, calibration.patterns)
+    if limits is not None:
+        return PspReconstructor(calibration, limits)(images).depth_mm
+    phase, valid, modulation, _, _ = multi_frequency_phase(images, calibration.patterns)
     depth = calibration.model.depth(phase, *calibration.camera.ideal_pixels()).astype(np.float32)
     valid &= modulation >= OLD_MIN_MODULATION * 255
     return trusted_depth(depth, valid, QualityLimits.max_depth_step_mm)[0]
@@ -65,26 +69,28 @@ def edges(capture, albedo) -> np.ndarray:
 
 
 def table(psp, rig, seeds, cuts) -> None:
+    """Each variant under each cut (label, QualityLimits or None: the old cut), over the sculpture and
+    objects scenes of the seeds, each rendered once."""
     print(f"{'scene':12} {'cut':>14} {'cover':>7} {'RMSE mm':>8} {'>1mm':>7} {'>1mm edge':>10}")
     for name in ("bright", "dark", "checkered", "striped"):
-        for label, cut in cuts:
-            acc = np.zeros(5)  # lit, kept, squared error, wrong outside edges, wrong at edges
-            for seed in seeds:
-                for kind in ("sculpture", "objects"):
-                    scene = dict(variants(make_scene(rig, kind, seed)))[name]
-                    capture = render(rig, scene, psp.calibration.patterns, np.random.default_rng(seed))
-                    depth = kept_depth(psp, capture.images, cut)
+        acc = np.zeros((len(cuts), 5))  # lit, kept, squared error, wrong outside edges, wrong at edges
+        for seed in seeds:
+            for kind in ("sculpture", "objects"):
+                scene = dict(variants(make_scene(rig, kind, seed)))[name]
+                capture = render(rig, scene, psp.calibration.patterns, np.random.default_rng(seed))
+                at_edge = edges(capture, scene.albedo)
+                for row, (_, limits) in zip(acc, cuts):
+                    depth = kept_depth(psp, capture.images, limits)
                     kept = np.isfinite(depth) & capture.valid
                     error = np.abs(depth - capture.depth_mm)
-                    at_edge = edges(capture, scene.albedo)
-                    acc += (
+                    row += (
                         capture.valid.sum(),
                         kept.sum(),
                         float((error[kept] ** 2).sum()),
                         (np.isfinite(depth) & ~at_edge & (error > 1)).sum(),
                         (np.isfinite(depth) & at_edge & (error > 1)).sum(),
                     )
-            lit, kept, sq, wrong, wrong_edge = acc
+        for (label, _), (lit, kept, sq, wrong, wrong_edge) in zip(cuts, acc):
             print(
                 f"{name:12} {label:>14} {kept / lit:7.1%} {np.sqrt(sq / max(kept, 1)):8.4f} "
                 f"{wrong / max(kept, 1):7.2%} {wrong_edge / max(kept, 1):10.3%}"
@@ -96,15 +102,26 @@ def main():
     parser.parse_args()
     rig = Rig()
     psp = PspReconstructor(Calibration.load(default_calibration_path()))
+    unbiased = QualityLimits(max_depth_bias_mm=np.inf)  # the noise cut alone, as it was chosen
     print(f"validation scenes (seeds {VALIDATION_SEEDS}, sculpture and objects): the noise cut swept")
-    table(
-        psp, rig, VALIDATION_SEEDS, [("B >= 5%", None)] + [(f"noise <= {t:g}", t) for t in (0.1, 0.15, 0.2, 0.25, 0.4)]
-    )
+    noise_cuts = [(f"noise <= {t:g}", replace(unbiased, max_depth_noise_mm=t)) for t in (0.1, 0.15, 0.2, 0.25, 0.4)]
+    table(psp, rig, VALIDATION_SEEDS, [("B >= 5%", None)] + noise_cuts)
     print(
         f"\nother scenes (seeds {REPORT_SEEDS}): before (B >= 5% of full scale) and after "
         f"(expected noise <= {QualityLimits.max_depth_noise_mm:g} mm, the default)"
     )
-    table(psp, rig, REPORT_SEEDS, [("before", None), ("after", QualityLimits.max_depth_noise_mm)])
+    table(psp, rig, REPORT_SEEDS, [("before", None), ("after", unbiased)])
+    for blur in BLURS_PX:
+        blurred = replace(rig, blur_sigma_px=blur)
+        print(f"\nvalidation scenes, camera blur {blur:g} px: the defocus bias limit swept (noise <= 0.2 mm)")
+        bias_cuts = [(f"bias <= {t:g}", replace(unbiased, max_depth_bias_mm=t)) for t in (np.inf, 0.25, 0.5, 0.75, 1)]
+        table(psp, blurred, VALIDATION_SEEDS, bias_cuts)
+    for blur in BLURS_PX:
+        print(
+            f"\nother scenes, camera blur {blur:g} px: before (no bias limit) and after "
+            f"(bias <= {QualityLimits.max_depth_bias_mm:g} mm, the default)"
+        )
+        table(psp, replace(rig, blur_sigma_px=blur), REPORT_SEEDS, [("before", unbiased), ("after", QualityLimits())])
 
 
 if __name__ == "__main__":

@@ -296,6 +296,7 @@ def cmd_reconstruct(args) -> None:
     limits = QualityLimits(
         max_depth_noise_mm=args.max_depth_noise,
         max_depth_step_mm=args.max_depth_step,
+        max_depth_bias_mm=args.max_depth_bias,
         min_modulation=args.min_modulation,
     )
     start = time.perf_counter()
@@ -512,6 +513,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="ftp: keep pixels whose fringe lobe is at least this fraction of full scale",
     )
     p.add_argument("--max-depth-step", type=float, default=QualityLimits.max_depth_step_mm)
+    p.add_argument(
+        "--max-depth-bias",
+        type=float,
+        default=QualityLimits.max_depth_bias_mm,
+        help="psp: largest depth a blurred albedo edge may move a kept pixel by, mm",
+    )
     p.add_argument(
         "--truth",
         help="ground-truth depth in mm (.npy/.tiff) for error.png (default: the folder's "

@@ -163,7 +163,7 @@ def projector_coordinates(pose: BoardPose, patterns: PatternSet) -> tuple[np.nda
     phases: phase = 2 pi f_max s / L) and where both are trustworthy."""
     out, ok = [], None
     for images, p in ((pose.vertical, patterns), (pose.horizontal, horizontal_patterns(patterns))):
-        phase, valid, _, noise = multi_frequency_phase(np.asarray(images), p)
+        phase, valid, _, noise, _ = multi_frequency_phase(np.asarray(images), p)
         valid &= noise <= MAX_PHASE_NOISE_RAD
         ok = valid if ok is None else ok & valid
         out.append(phase.astype(np.float64) * p.period_axis_length / (TWO_PI * p.frequencies[-1]))

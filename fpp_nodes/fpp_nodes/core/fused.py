@@ -48,14 +48,15 @@ def _angle(y, x):
 def sequence_phase(
     images, first, last, sin_weights, cos_weights, ratios, residual_bases, residual_weights, max_cycles, full_scale
 ):
-    """From (F*N [+ more], H, W) phase-shift images in projection order, F frequencies of N steps, at
-    rows first to last: the top frequency's unwrapped phase, its modulation B, the pixels whose fringe
-    order agrees at every level (|cycles - order| <= max_cycles) and whose top-frequency images stay
-    below full_scale, and the top frequency's residual power (sum over residual_bases of weight x
-    (basis . I)^2). ratios are f_i / f_(i-1). float32 throughout."""
+    """From (F*N [+ more], H, W) phase-shift images in projection order, F >= 2 frequencies of N steps,
+    at rows first to last: the top frequency's unwrapped phase, its modulation B, the pixels whose
+    fringe order agrees at every level (|cycles - order| <= max_cycles) and whose top-frequency images
+    stay below full_scale, the top frequency's residual power (sum over residual_bases of weight x
+    (basis . I)^2), and the next lower frequency's B. ratios are f_i / f_(i-1). float32 throughout."""
     n, levels, width = sin_weights.shape[0], ratios.shape[0] + 1, images.shape[2]
     phase = np.empty((last - first, width), np.float32)
     modulation = np.empty((last - first, width), np.float32)
+    coarser = np.empty((last - first, width), np.float32)
     trusted = np.empty((last - first, width), np.bool_)
     power = np.empty((last - first, width), np.float32)
     y, x = np.empty(width, np.float32), np.empty(width, np.float32)
@@ -85,6 +86,10 @@ def sequence_phase(
                     order = np.float32(np.rint(cycles))
                     fails[c] += np.float32(abs(cycles - order) > max_cycles)
                     unwrapped[c] = wrapped + _TWO_PI * order
+            if level == levels - 2:
+                b = coarser[i]
+                for c in range(width):
+                    b[c] = np.float32(2.0 / n) * math.sqrt(x[c] * x[c] + y[c] * y[c])
         b = modulation[i]
         for c in range(width):
             b[c] = np.float32(2.0 / n) * math.sqrt(x[c] * x[c] + y[c] * y[c])
@@ -106,33 +111,40 @@ def sequence_phase(
             w = np.float32(residual_weights[k])
             for c in range(width):
                 p[c] += w * x[c] * x[c]
-    return phase, modulation, trusted, power
+    return phase, modulation, trusted, power, coarser
 
 
 @numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
-def trusted_points(phase, phase_noise, trusted, lo, first, last, terms, slope, rays_x, rays_y, limits, out):
-    """A band of rows, from image row lo on: its unwrapped phase, phase noise (rad) and trusted pixels
-    -> the rational model's depth (ca + cb phi) / (da + db phi) and depth noise |dz/dphi| phase_noise,
-    dz/dphi = (cb da - ca db) / (da + db phi)^2, under reconstruct.trusted_depth's rules: a pixel is
-    kept where it is trusted, its depth noise is at most limits[0] mm, so are its 4-neighbours'
-    (defocus carries fringes across a shadow edge), and no kept 4-neighbour's depth is more than
-    limits[1] mm away (a flying pixel). Writes image rows first to last of out = (depth, depth
-    noise, kept, XYZ along the rays), NaN where not kept. terms (4, H, W), slope |cb da - ca db|
-    and the rays are the whole image's."""
+def trusted_points(
+    phase, phase_noise, coarser, trusted, lo, first, last, terms, slope, rays_x, rays_y, blur, limits, out
+):
+    """A band of rows, from image row lo on: its unwrapped phase, phase noise (rad), a lower frequency's
+    modulation and trusted pixels -> the rational model's depth (ca + cb phi) / (da + db phi), depth
+    noise |dz/dphi| phase_noise and defocus bias |dz/dphi| phase.defocus_phase_bias(phase, coarser,
+    blur), dz/dphi = (cb da - ca db) / (da + db phi)^2, under reconstruct.trusted_depth's rules: a
+    pixel is kept where it is trusted, its depth noise is at most limits[0] mm, so are its
+    4-neighbours' (defocus carries fringes across a shadow edge), no kept 4-neighbour's depth is more
+    than limits[1] mm away (a flying pixel), and its own defocus bias is at most limits[2] mm.
+    Writes image rows first to last of out = (depth, depth noise, kept, XYZ along the rays), NaN
+    where not kept. terms (4, H, W), slope |cb da - ca db| and the rays are the whole image's."""
     height, width = phase.shape
-    max_noise, max_step = np.float32(limits[0]), np.float32(limits[1])
+    max_noise, max_step, max_bias = np.float32(limits[0]), np.float32(limits[1]), np.float32(limits[2])
     depth, noise = np.empty((height, width), np.float32), np.empty((height, width), np.float32)
+    bias, biased = np.empty(width, np.float32), np.empty((height, width), np.bool_)
     for r in range(height):
+        _defocus_bias_row(phase, coarser, r, np.float32(blur), bias)
         ca, cb, da, db, s = terms[0, lo + r], terms[1, lo + r], terms[2, lo + r], terms[3, lo + r], slope[lo + r]
         phi_row, sigma_row, trusted_row = phase[r], phase_noise[r], trusted[r]
         for c in range(width):
             phi = phi_row[c]
             den = db[c] * phi + da[c]
             z = (cb[c] * phi + ca[c]) / den
-            sigma = sigma_row[c] * s[c] / (den * den)
+            dz = s[c] / (den * den)
+            sigma = sigma_row[c] * dz
             keep = trusted_row[c] & (sigma <= max_noise)
             noise[r, c] = sigma
             depth[r, c] = z if keep else np.nan
+            biased[r, c] = not bias[c] * dz <= max_bias  # NaN: not known, so biased
     eroded = np.empty((height, width), np.float32)
     for r in range(height):  # beyond the band and the image counts as kept, as cv2.erode's border
         _neighbour_rule(depth[max(r - 1, 0)], depth[r], depth[min(r + 1, height - 1)], np.inf, eroded[r])
@@ -147,14 +159,38 @@ def trusted_points(phase, phase_noise, trusted, lo, first, last, terms, slope, r
             rays_y[lo + r],
             xyz_out[lo + r],
         )
-        for c in range(width):
+        for c in range(width):  # a biased pixel's neighbours keep their depth: its bias is its own
             z, sigma = z_row[c], noise[r, c]
+            z = np.float32(np.nan) if biased[r, c] else z
+            z_row[c] = z
             finite = np.isfinite(z)
             kept[c] = finite
             noise_row[c] = sigma if finite else np.nan
             xyz[c, 0] = x[c] * z
             xyz[c, 1] = y[c] * z
             xyz[c, 2] = z
+
+
+@numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
+def _bias_at(phase, b, r, up, down, c, left, right, blur):
+    """phase.defocus_phase_bias at one pixel, its neighbours' indices given (the border replicated)."""
+    gx = np.float32(0.5) * (phase[r, right] - phase[r, left])
+    gy = np.float32(0.5) * (phase[down, c] - phase[up, c])
+    lx = (b[r, right] - b[r, left]) / (b[r, right] + b[r, left])
+    ly = (b[down, c] - b[up, c]) / (b[down, c] + b[up, c])
+    return blur * abs(gx * lx + gy * ly)
+
+
+@numba.njit(inline="always", fastmath=_FAST, error_model="numpy")
+def _defocus_bias_row(phase, b, r, blur, out):
+    """phase.defocus_phase_bias along row r of a band (its first and last rows replicated: halo rows,
+    but at the image's top and bottom, where the image's border is)."""
+    height, width = phase.shape
+    up, down = max(r - 1, 0), min(r + 1, height - 1)
+    for c in range(1, width - 1):
+        out[c] = _bias_at(phase, b, r, up, down, c, c - 1, c + 1, blur)
+    out[0] = _bias_at(phase, b, r, up, down, 0, 0, min(1, width - 1), blur)
+    out[width - 1] = _bias_at(phase, b, r, up, down, width - 1, max(width - 2, 0), width - 1, blur)
 
 
 @numba.njit(inline="always", fastmath=_FAST, error_model="numpy")

@@ -159,6 +159,43 @@ def pooled_phase_noise(
         return cv2.sqrt(power) / modulation
 
 
+def blur_variance(
+    phase: np.ndarray, modulation: np.ndarray, coarser_modulation: np.ndarray, ratio: float, where, step: int = 8
+) -> float:
+    """The variance (px^2) of the blur a sequence shows, from two of its frequencies: a Gaussian blur
+    of variance s keeps exp(-s k^2 / 2) of the contrast of fringes whose phase changes by k rad a
+    pixel, so fringes ratio times finer than the coarser ones keep exp(-s k^2 (1 - 1 / ratio^2) / 2)
+    of their modulation against them (k = |grad phase| of the finer, central differences). The median
+    over the pixels where, on every step-th pixel of every step-th row, at least 0. It holds the
+    projector's defocus as well as the camera's: an upper bound of the camera's blur, which is what
+    defocus_phase_bias needs."""
+    rows, cols = slice(1, phase.shape[0] - 1, step), slice(1, phase.shape[1] - 1, step)
+    gy = (phase[2::step, cols].astype(np.float64) - phase[:-2:step, cols]) / 2
+    gx = (phase[rows, 2::step].astype(np.float64) - phase[rows, :-2:step]) / 2
+    k2 = (gx * gx + gy * gy) * (1.0 - 1.0 / ratio**2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = -2.0 * np.log(modulation[rows, cols] / coarser_modulation[rows, cols]) / k2
+    s = s[where[rows, cols] & np.isfinite(s)]
+    return max(0.0, float(np.median(s))) if s.size else 0.0
+
+
+def defocus_phase_bias(phase: np.ndarray, modulation: np.ndarray, variance: float) -> np.ndarray:
+    """How far (rad) the camera's blur moves each pixel's phase where the albedo changes across the
+    fringes. A blur of variance s mixes a pixel's neighbours into it, each by its own brightness: to
+    first order in s, the phase moves by s grad(phase) . grad(ln B) towards the brighter side (B: a
+    frequency's modulation, which follows the blurred albedo; docs/multi-shot.md). A plain surface
+    has none; a striped or printed one under a blur of 1 px moves by up to a few tenths of a radian.
+    Central differences, the border replicated; d ln B as (B+ - B-) / (B+ + B-), which it is to
+    first order (no logarithm; NaN where both are 0)."""
+    p = np.pad(np.asarray(phase, np.float64), 1, mode="edge")
+    b = np.pad(np.asarray(modulation, np.float64), 1, mode="edge")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bx = (b[1:-1, 2:] - b[1:-1, :-2]) / (b[1:-1, 2:] + b[1:-1, :-2])
+        by = (b[2:, 1:-1] - b[:-2, 1:-1]) / (b[2:, 1:-1] + b[:-2, 1:-1])
+    px, py = (p[1:-1, 2:] - p[1:-1, :-2]) / 2, (p[2:, 1:-1] - p[:-2, 1:-1]) / 2
+    return np.abs(variance * (px * bx + py * by))
+
+
 def unwrap_temporal(wrapped: list[np.ndarray], frequencies, max_residual: float = np.pi / 2):
     """Hierarchical temporal unwrapping, equation (2):
 

@@ -16,6 +16,7 @@ from .patterns import COMPOSITE_CODES, PatternSet
 from .phase import (
     TWO_PI,
     PhaseError,
+    blur_variance,
     ftp_code_phases,
     ftp_wrapped_phase,
     pooled_phase_noise,
@@ -46,11 +47,15 @@ class QualityLimits:
     at every frequency within max_order_residual (rad) and whose top-frequency images are unsaturated.
     The single-shot FTP baseline keeps a pixel whose lobe amplitude is at least min_modulation of full
     scale. A pixel whose depth differs from a 4-neighbour's by more than max_depth_step_mm mixes two
-    surfaces (a flying pixel at an edge) and is dropped with that neighbour."""
+    surfaces (a flying pixel at an edge) and is dropped with that neighbour. Where the albedo changes
+    across the fringes, defocus moves the phase towards the brighter side: a pixel whose depth that
+    may move by more than max_depth_bias_mm (phase.defocus_phase_bias, with the blur the frame's own
+    fringes show) is dropped."""
 
     max_depth_noise_mm: float = 0.2  # 1 mm is 5 sigma: no pixel off by 1 mm from noise (scripts/quality_cut.py)
     max_order_residual: float = np.pi / 2
     max_depth_step_mm: float = 2.0
+    max_depth_bias_mm: float = 0.5  # on validation: no cost in focus, 21% -> 0.06% off by 1 mm on stripes at 1 px
     min_modulation: float = 0.05
 
     def __post_init__(self):
@@ -62,6 +67,8 @@ class QualityLimits:
             raise ValueError(f"max_order_residual must be in (0, pi), got {self.max_order_residual}")
         if not self.max_depth_step_mm > 0:
             raise ValueError(f"max_depth_step_mm must be > 0, got {self.max_depth_step_mm}")
+        if not self.max_depth_bias_mm > 0:
+            raise ValueError(f"max_depth_bias_mm must be > 0, got {self.max_depth_bias_mm}")
 
 
 def drop_flying_pixels(depth: np.ndarray, max_step: float) -> np.ndarray:
@@ -77,7 +84,8 @@ def multi_frequency_phase(
     the set has one): the unwrapped phase of the highest frequency (phase.unwrap_temporal of each
     frequency's phase.wrapped_phase), the mask of pixels whose fringe order is consistent and whose
     top-frequency images are below full scale (a clipped sinusoid moves the phase), that frequency's
-    modulation B and its phase noise (rad, phase.phase_noise): in one compiled pass, fused.sequence_phase.
+    modulation B, its phase noise (rad, phase.phase_noise) and the next lower frequency's B (what
+    phase.blur_variance and phase.defocus_phase_bias read): in one compiled pass, fused.sequence_phase.
     Of these rows only, where rows is given (phase noise pools neighbours: it is exact a few rows in)."""
     n = patterns.steps
     if images.ndim != 3 or images.shape[0] != patterns.count:
@@ -88,7 +96,7 @@ def multi_frequency_phase(
         raise PhaseError(f"images must be real numbers, got {images.dtype}")
     integer = np.issubdtype(images.dtype, np.integer)
     frequencies = np.asarray(patterns.frequencies, np.float64)
-    phase, modulation, valid, power = fused.sequence_phase(
+    phase, modulation, valid, power, coarser = fused.sequence_phase(
         np.ascontiguousarray(images),
         *rows.indices(images.shape[1])[:2],
         *step_weights(n),
@@ -104,7 +112,7 @@ def multi_frequency_phase(
     # fringes' contrast most).
     turn = np.float32(TWO_PI * frequencies[-1] / frequencies[0])
     valid &= np.minimum(phase, turn - phase) > np.float32(WRAP_SIGMAS * turn / TWO_PI) * noise
-    return phase, valid, modulation, noise
+    return phase, valid, modulation, noise, coarser
 
 
 def full_scale(dtype) -> float:
@@ -184,26 +192,50 @@ class PspReconstructor:
             *(np.empty(shape, np.float32), np.empty((*shape, 3), np.float32), np.empty(shape, bool)),
             *(np.empty(shape, np.float32) for _ in range(3)),
         )
-        if self._pool is None:
-            self._band(images, 0, shape[0], out)
-        else:  # each band writes its rows of the outputs
-            for band in [self._pool.submit(self._band, images, *rows, out) for rows in self._bands]:
-                band.result()
+        # each band writes its rows of the outputs; the blur is the whole frame's, between the two passes
+        coarser, trusted = np.empty(shape, np.float32), np.empty(shape, bool)
+        bands = self._map(lambda rows: self._phase_band(images, *rows, out, coarser, trusted), self._bands)
+        frequencies = self.calibration.patterns.frequencies
+        blur = blur_variance(out.phase, out.modulation, coarser, frequencies[-1] / frequencies[-2], trusted)
+        self._map(lambda band: self._depth_band(*band, blur, out), bands)
         return out
 
-    def _band(self, images: np.ndarray, first: int, last: int, out: Reconstruction) -> None:
-        """Rows first to last of out, from those rows and BAND_HALO more on each side."""
+    def _map(self, work, items) -> list:
+        return [work(i) for i in items] if self._pool is None else list(self._pool.map(work, items))
+
+    def _phase_band(self, images: np.ndarray, first: int, last: int, out: Reconstruction, coarser, trusted):
+        """The first pass over rows first to last, from those rows and BAND_HALO more on each side: their
+        phase and modulation into out, the lower frequency's modulation and the trusted pixels into
+        coarser and trusted; what the second pass needs of the band, halo included."""
         lo, hi = max(0, first - BAND_HALO), min(images.shape[1], last + BAND_HALO)
-        phase, valid, modulation, noise_rad = multi_frequency_phase(
-            images, self.calibration.patterns, self.limits, slice(lo, hi)
+        band = multi_frequency_phase(images, self.calibration.patterns, self.limits, slice(lo, hi))
+        own = slice(first - lo, last - lo)
+        for whole, part in zip((out.phase, trusted, out.modulation, coarser), (band[0], band[1], band[2], band[4])):
+            whole[first:last] = part[own]
+        return first, last, lo, band
+
+    def _depth_band(self, first: int, last: int, lo: int, band, blur: float, out: Reconstruction) -> None:
+        """The second pass: depth, its noise, the kept pixels and XYZ of rows first to last."""
+        phase, valid, _, noise_rad, coarser = band
+        limits = np.array(
+            [self.limits.max_depth_noise_mm, self.limits.max_depth_step_mm, self.limits.max_depth_bias_mm]
         )
-        limits = np.array([self.limits.max_depth_noise_mm, self.limits.max_depth_step_mm])
         outputs = (out.depth_mm, out.quality, out.valid, out.xyz_mm)
         fused.trusted_points(
-            phase, noise_rad, valid, lo, first, last, self._terms, self._slope, *self._rays, limits, outputs
+            phase,
+            noise_rad,
+            coarser,
+            valid,
+            lo,
+            first,
+            last,
+            self._terms,
+            self._slope,
+            *self._rays,
+            blur,
+            limits,
+            outputs,
         )
-        out.phase[first:last] = phase[first - lo : last - lo]
-        out.modulation[first:last] = modulation[first - lo : last - lo]
 
 
 # Rows each band of PspReconstructor reads beyond its own: the phase noise pools 5 x 5 pixels (2 rows),

@@ -56,7 +56,7 @@ def calibrate_from_planes(
                 f"the camera is {camera.width}x{camera.height}"
             )
         images = camera.full_range(images)
-        phase, valid, _, noise = multi_frequency_phase(images, patterns, limits)
+        phase, valid, _, noise, _ = multi_frequency_phase(images, patterns, limits)
         valid &= noise <= CALIBRATION_MAX_PHASE_NOISE_RAD
         v, u = np.nonzero(valid)
         if u.size < 100:

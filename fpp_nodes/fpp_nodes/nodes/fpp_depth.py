@@ -44,6 +44,13 @@ class FppDepth(Node):
                 "largest depth step between neighbours kept (flying pixels), mm",
                 True,
             ),
+            max_depth_bias_mm=declare(
+                self,
+                "max_depth_bias_mm",
+                QualityLimits.max_depth_bias_mm,
+                "largest depth a blurred albedo edge may move a pixel by and it is kept, mm",
+                True,
+            ),
         )
         self._use(calibration, source)
         follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))

@@ -138,7 +138,7 @@ def test_horizontal_fringes_tell_the_projector_row(ideal_rig):
 
     patterns = horizontal_patterns(ideal_rig.pattern_set(bit_depth=16))
     capture = render(ideal_rig, plane_scene(ideal_rig, 1180.0, tilt_x_deg=15.0), patterns)
-    phase, valid, _, _ = multi_frequency_phase(capture.images, patterns)
+    phase, valid, _, _, _ = multi_frequency_phase(capture.images, patterns)
     row = phase * ideal_rig.projector_height / (2 * np.pi * patterns.frequencies[-1])
     # 0.02 projector px: the projector's pixels, linear between centres, bend an 8-px period's sinusoid
     assert valid.mean() > 0.99 and np.abs(row - capture.projector_coord)[valid].max() < 0.02
