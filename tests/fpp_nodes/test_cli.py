@@ -147,6 +147,10 @@ def bad_inputs(workdir, tmp_path):
             ("reconstruct", scene, "--calibration", cal, "--max-depth-noise", "0", "--out", tmp_path / "o"),
             "max_depth_noise_mm",
         ),
+        (
+            ("reconstruct", scene, "--calibration", cal, "--max-depth-bias", "-1", "--out", tmp_path / "o"),
+            "max_depth_bias_mm",
+        ),
         (("calibrate", f"{scene}:1200", "--sensor", scene / "sensor.yaml"), "three or more different depths"),
         (("calibrate", f"{scene}:abc", "--sensor", scene / "sensor.yaml"), "not a number"),
         (
