@@ -35,6 +35,7 @@ class Reconstruction:
     quality: np.ndarray  # (H, W) float32: PSP the expected depth noise (mm, NaN where invalid); FTP the lobe amplitude
     phase: np.ndarray  # (H, W) unwrapped phase of the highest frequency
     modulation: np.ndarray | None = None  # (H, W) float32: PSP the fringe modulation B, image units
+    blur_px: float | None = None  # PSP: the blur the sequence's fringes show (phase.blur_variance), its sqrt
 
 
 WRAP_SIGMAS = 5.0  # how far, in its noise, the lowest frequency's phase must be from its wrap
@@ -198,6 +199,7 @@ class PspReconstructor:
         frequencies = self.calibration.patterns.frequencies
         blur = blur_variance(out.phase, out.modulation, coarser, frequencies[-1] / frequencies[-2], trusted)
         self._map(lambda band: self._depth_band(*band, blur, out), bands)
+        out.blur_px = float(np.sqrt(blur))
         return out
 
     def _map(self, work, items) -> list:

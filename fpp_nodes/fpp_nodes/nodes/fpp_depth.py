@@ -107,6 +107,8 @@ class FppDepth(Node):
         self.health.count("depth out")
         self.health.latency(time.perf_counter() - start)
         self.health.usable_pixels(np.count_nonzero(rec.valid) / rec.valid.size, "sequences without fringes")
+        # a focus monitor: the defocus the fringes show (camera and projector), which the bias rule reads
+        self.health.fact("fringe blur (last)", f"{rec.blur_px:.2f} px")
 
 
 def main(args=None):

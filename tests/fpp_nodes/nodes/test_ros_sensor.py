@@ -130,6 +130,8 @@ def test_health_on_diagnostics(ros_graph):
     assert diagnostics.value("/capture_sequence", "sequences dropped", "none") == "none"  # never counted: none
     assert float(diagnostics.value("/fpp_depth", "latency p50 (ms)")) > 0
     assert "sha256" in diagnostics.value("/fpp_depth", "calibration", "")
+    # the simulated camera's blur, 0.5 px, as the fringes show it (measured 0.51)
+    assert 0.4 < float(diagnostics.value("/fpp_depth", "fringe blur (last)", "0 px").split()[0]) < 0.6
     card = yaml.safe_load(open(default_model_path()[:-5] + ".yaml"))
     assert diagnostics.value("/cnn/cnn_depth", "model sha256") == card["sha256"][:12]
     assert float(diagnostics.value("/cnn/cnn_depth", "latency p95 (ms)")) > 0
