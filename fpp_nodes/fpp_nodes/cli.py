@@ -310,6 +310,8 @@ def cmd_reconstruct(args) -> None:
         f"{args.method}: {points} points ({rec.valid.mean():.1%} of pixels) in {elapsed * 1000:.1f} ms, setting up "
         f"included (the path alone: make bench, make bench-cnn) -> {out}"
     )
+    if rec.blur_px is not None:  # a focus check: what the bias limit reads
+        print(f"fringe blur {rec.blur_px:.2f} px (camera and projector; the default rig's camera: 0.5)")
     truth = _truth_beside(args.images, args.truth)
     if truth is not None and truth.shape != rec.depth_mm.shape:
         raise io.InputError(
