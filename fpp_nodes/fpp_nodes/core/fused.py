@@ -86,13 +86,10 @@ def sequence_phase(
                     order = np.float32(np.rint(cycles))
                     fails[c] += np.float32(abs(cycles - order) > max_cycles)
                     unwrapped[c] = wrapped + _TWO_PI * order
-            if level == levels - 2:
-                b = coarser[i]
+            if level >= levels - 2:  # B of the top frequency, and of the one below it (the blur reads both)
+                b = modulation[i] if level == levels - 1 else coarser[i]
                 for c in range(width):
                     b[c] = np.float32(2.0 / n) * math.sqrt(x[c] * x[c] + y[c] * y[c])
-        b = modulation[i]
-        for c in range(width):
-            b[c] = np.float32(2.0 / n) * math.sqrt(x[c] * x[c] + y[c] * y[c])
         for j in range(n):
             image = images[top + j, r]
             for c in range(width):
