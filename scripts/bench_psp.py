@@ -59,8 +59,7 @@ def stage_table(psp: PspReconstructor, images: np.ndarray, repeat: int) -> None:
     height, width = phase.shape
     out = (np.empty_like(phase), np.empty_like(phase), np.empty_like(valid), np.empty((height, width, 3), np.float32))
     limits_mm = np.array([limits.max_depth_noise_mm, limits.max_depth_step_mm, limits.max_depth_bias_mm])
-    ratio = patterns.frequencies[-1] / patterns.frequencies[-2]
-    blur = blur_variance(phase, modulation, coarser, ratio, valid)
+    blur = blur_variance(phase, modulation, coarser, patterns.top_ratio, valid)
     stages = [
         (
             f"{len(patterns.frequencies)} phases, unwrapping, checks (compiled pass 1), phase noise",
@@ -68,7 +67,7 @@ def stage_table(psp: PspReconstructor, images: np.ndarray, repeat: int) -> None:
         ),
         (
             "the frame's blur (median over every 8th pixel of every 8th row)",
-            lambda: blur_variance(phase, modulation, coarser, ratio, valid),
+            lambda: blur_variance(phase, modulation, coarser, patterns.top_ratio, valid),
         ),
         (
             "depth, depth noise, defocus bias, trust rules, XYZ (compiled pass 2)",

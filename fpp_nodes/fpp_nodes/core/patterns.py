@@ -72,6 +72,11 @@ class PatternSet:
         return slice(self.phase_shift_count - self.steps, self.phase_shift_count)
 
     @property
+    def top_ratio(self) -> float:
+        """How many times finer the highest frequency's fringes are than the next's (5 for 1, 4, 20, 100)."""
+        return self.frequencies[-1] / self.frequencies[-2]
+
+    @property
     def count(self) -> int:
         """Frames per sequence: the phase-shift set, then the composite when there is one."""
         return self.phase_shift_count + (self.single_shot == "composite")

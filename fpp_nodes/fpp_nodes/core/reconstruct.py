@@ -196,8 +196,7 @@ class PspReconstructor:
         # each band writes its rows of the outputs; the blur is the whole frame's, between the two passes
         coarser, trusted = np.empty(shape, np.float32), np.empty(shape, bool)
         bands = self._map(lambda rows: self._phase_band(images, *rows, out, coarser, trusted), self._bands)
-        frequencies = self.calibration.patterns.frequencies
-        blur = blur_variance(out.phase, out.modulation, coarser, frequencies[-1] / frequencies[-2], trusted)
+        blur = blur_variance(out.phase, out.modulation, coarser, self.calibration.patterns.top_ratio, trusted)
         self._map(lambda band: self._depth_band(*band, blur, out), bands)
         out.blur_px = float(np.sqrt(blur))
         return out

@@ -125,7 +125,7 @@ def test_the_compiled_passes_are_the_plain_functions(rig, patterns, calibration)
     valid &= noise <= QualityLimits().max_depth_noise_mm
     depth, valid = trusted_depth(depth.astype(np.float32), valid, QualityLimits().max_depth_step_mm)
     _, coarser = phase_and_modulation(exact[(levels - 2) * n : (levels - 1) * n])
-    blur = blur_variance(phase, modulation, coarser, patterns.frequencies[-1] / patterns.frequencies[-2], trusted)
+    blur = blur_variance(phase, modulation, coarser, patterns.top_ratio, trusted)
     valid &= defocus_phase_bias(phase, coarser, blur) * np.abs(dz_dphi) <= QualityLimits().max_depth_bias_mm
     depth[~valid] = np.nan
 
@@ -149,8 +149,7 @@ def test_the_blur_a_sequence_shows_is_the_rigs(patterns, calibration, blur_px):
     rig = replace(Rig(), blur_sigma_px=blur_px)
     capture = render(rig, make_scene(rig, "sculpture", 2000), patterns, np.random.default_rng(2000))
     phase, valid, modulation, _, coarser = multi_frequency_phase(capture.images, patterns)
-    ratio = patterns.frequencies[-1] / patterns.frequencies[-2]
-    assert blur_variance(phase, modulation, coarser, ratio, valid) == pytest.approx(blur_px**2, rel=0.1)
+    assert blur_variance(phase, modulation, coarser, patterns.top_ratio, valid) == pytest.approx(blur_px**2, rel=0.1)
 
 
 def test_defocus_bias_is_refused_on_striped_surfaces(patterns, calibration):
