@@ -48,6 +48,7 @@ from fpp_nodes.core.scenes import (
     grating_texture,
     make_scene,
     pink_noise,
+    striped_like_the_carrier,
     textured,
 )
 from fpp_nodes.core.simulation import Rig, beyond_training_rig, random_rig, render
@@ -66,6 +67,7 @@ SETS = {
     "composite_retest2": ("families", (0, 0, 120), 700_000, "composite"),
     "composite_hard": ("families", (0, 120, 0), 800_000, "composite"),
     "composite_reliefs": ("reliefs", (120, 40, 40), 1_000_000, "composite"),
+    "composite_stripes": ("families", (120, 0, 0), 1_200_000, "composite"),
 }
 # composite_paper: the composite set's scenes (the same seeds), the paper's single-shot frame: the two
 # patterns compared on the same scenes with the same training budget (README, Table 1).
@@ -74,6 +76,9 @@ SETS = {
 # for design choices (the second was, for the quarter-resolution network's; the third for none).
 # composite_reliefs: low reliefs (the reliefs family: steps of 0.5-8 mm, under and over half a fringe order),
 # which no family of the composite set has; a set of its own, so that the composite set's draws stay as they are.
+# composite_stripes: training scenes of the training families with every surface striped near the carrier
+# (scenes.striped_like_the_carrier), which the composite set's texture draws hardly ever hold: the recipe's last
+# fine-tune adds them to its training scenes.
 # composite_hard: validation scenes of the training families under conditions one image reads worst,
 # beyond what training draws (HARD_CONDITIONS): export chooses a network's rules on them beside the
 # composite set's (--data twice), so its silent-error budget is spent where one image is hard to read.
@@ -158,7 +163,12 @@ def hard_texture(rng: np.random.Generator) -> tuple[str, object]:
 
 
 def make_sample(
-    kind: str, seed: int, families: bool = False, surface_mm: float | None = None, hard: bool = False
+    kind: str,
+    seed: int,
+    families: bool = False,
+    surface_mm: float | None = None,
+    hard: bool = False,
+    stripes: bool = False,
 ) -> dict:
     """Render one scene, reconstruct it with the multi-shot path, keep the single-shot frame.
 
@@ -167,11 +177,14 @@ def make_sample(
     highest frequency (float32, NaN where untrusted), and `fringe`, its numerator and denominator
     (B sin phi, B cos phi over full scale, float16), the phase-aware network's targets. hard: the scene
     under photometry beyond the training ranges or with a texture the generator never draws, drawn
-    half and half; its family is which (HARD_CONDITIONS), `condition` says what it is."""
+    half and half; its family is which (HARD_CONDITIONS), `condition` says what it is. stripes: every
+    surface striped near the carrier (striped_like_the_carrier)."""
     rig, patterns, psp = _worker["rig"], _worker["patterns"], _worker["psp"]
     if families:
         rig = random_rig(np.random.default_rng([seed, 1]), rig)
     scene, family, condition = make_scene(rig, kind, seed, surface_mm), kind, None
+    if stripes:
+        scene = striped_like_the_carrier(rig, patterns, scene, seed)
     if hard:
         rng = np.random.default_rng([seed, 4])
         if rng.random() < 0.5:
@@ -219,10 +232,10 @@ def phase_targets(images: np.ndarray, rec, calibration: Calibration) -> dict:
 
 
 def _write(job):
-    kind, seed, path, families, surface_mm, hard = job
+    kind, seed, path, families, surface_mm, hard, stripes = job
     partial = path.with_suffix(".part")
     with open(partial, "wb") as f:
-        np.savez_compressed(f, **make_sample(kind, seed, families, surface_mm, hard))
+        np.savez_compressed(f, **make_sample(kind, seed, families, surface_mm, hard, stripes))
     partial.replace(path)  # a stopped run leaves no half-written sample behind
     return path
 
@@ -233,7 +246,7 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
     counts = tuple(counts or paper_counts)
     calibration = set_calibration(calibration_path or default_calibration_path(), single_shot)
     surface_mm = calibration.reference_depth_mm if set_name == "surface" else None
-    hard = set_name == "composite_hard"
+    hard, stripes = set_name == "composite_hard", set_name == "composite_stripes"
     folder = Path(out) / set_name
     jobs = []
     for split, n in zip(SPLITS, counts):
@@ -243,7 +256,7 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
             if not path.exists():
                 families = kind == "families" or kind in SCENE_FAMILIES  # one family: its samples as the set's
                 kind_i = family_of(split, i) if kind == "families" else kind
-                jobs.append((kind_i, seed_of(set_name, split, i), path, families, surface_mm, hard))
+                jobs.append((kind_i, seed_of(set_name, split, i), path, families, surface_mm, hard, stripes))
     rig, patterns = Rig(), calibration.patterns
     (folder / "dataset.yaml").write_text(
         yaml.safe_dump(

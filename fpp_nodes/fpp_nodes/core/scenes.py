@@ -483,6 +483,25 @@ def textured(rig: Rig, patterns: PatternSet, scene: Scene, texture, seed: int) -
     return Scene(scene.name, scene.depth_mm, np.where(scene.albedo > 0, albedo, 0.0))
 
 
+# Stripes near the carrier: periods of these times its own in the projector, within this angle of its fringes
+CARRIER_STRIPE_PERIODS, CARRIER_STRIPE_DEG = (0.6, 1.45), 25.0
+
+
+def striped_like_the_carrier(rig: Rig, patterns: PatternSet, scene: Scene, seed: int) -> Scene:
+    """The scene with its albedo times square stripes near the composite's carrier (CARRIER_STRIPE_PERIODS
+    times its period, within CARRIER_STRIPE_DEG of its fringes, wherever a surface lies: drawn in the
+    projector), contrast TEXTURE_CONTRAST. One image reads them as a shift of the carrier's phase except
+    through what they do to the code gratings (their sidebands), so a network learns that only from
+    scenes that hold them (docs/single-shot.md)."""
+    renderer = SceneRenderer(rig, scene)
+    xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
+    rng = np.random.default_rng([seed, 5])
+    angle = np.radians(rng.uniform(-CARRIER_STRIPE_DEG, CARRIER_STRIPE_DEG))
+    period = patterns.width / patterns.frequencies[-1] * rng.uniform(*CARRIER_STRIPE_PERIODS)
+    stripes = ((xp * np.cos(angle) + yp * np.sin(angle)) / period + rng.random()) % 1.0 < 0.5
+    return Scene(scene.name, scene.depth_mm, scene.albedo * (1.0 - rng.uniform(*TEXTURE_CONTRAST) * stripes))
+
+
 def board_scene(rig: Rig, board, rotation: np.ndarray, translation_mm: np.ndarray) -> Scene:
     """A printed calibration board (core.board.Board) at a pose: board point b is at rotation @ b +
     translation_mm in the camera's frame. Its print is averaged over 4 x 4 points in each pixel, as

@@ -4,7 +4,14 @@ import time
 import numpy as np
 import pytest
 
-from fpp_nodes.core.scenes import FAMILY_NAMES, SCENE_FAMILIES, VOID_DEPTH_MM, make_scene
+from fpp_nodes.core.scenes import (
+    FAMILY_NAMES,
+    SCENE_FAMILIES,
+    VOID_DEPTH_MM,
+    make_scene,
+    plane_scene,
+    striped_like_the_carrier,
+)
 from fpp_nodes.core.simulation import Rig, random_rig, render
 
 SEEDS = (0, 1)
@@ -131,3 +138,27 @@ def test_random_rig_stays_in_range_and_keeps_gamma():
         assert changed <= {"ambient", "gain", "noise_sigma", "blur_sigma_px"}
     assert len({r.gain for r in rigs}) == len(rigs)  # drawn, not fixed
     assert max(r.ambient for r in rigs) > 0.12 and min(r.noise_sigma for r in rigs) < 0.8
+
+
+def dominant_frequency(image: np.ndarray) -> np.ndarray:
+    """(cycles per pixel along x, along y) of the strongest component of a patch, sign chosen along x."""
+    spectrum = np.abs(np.fft.fft2(image - image.mean()))
+    iy, ix = np.unravel_index(np.argmax(spectrum), spectrum.shape)
+    f = np.array([np.fft.fftfreq(image.shape[1])[ix], np.fft.fftfreq(image.shape[0])[iy]])
+    return f if f[0] >= 0 else -f
+
+
+def test_stripes_near_the_carrier_lie_within_their_ranges_of_its_period_and_direction(rig, patterns):
+    """striped_like_the_carrier on a plane at the stand-off: the albedo's stripes at 0.6-1.45 times the
+    carrier's period and within 25 deg of its direction (both measured in the camera's image, the
+    carrier on the plain plane's composite frame; a 256 px patch resolves the period to about 4%)."""
+    patch = (slice(112, 368), slice(192, 448))
+    plain = plane_scene(rig, rig.standoff_mm)
+    carrier = dominant_frequency(render(rig, plain, patterns).images[patterns.single_shot_index][patch].astype(float))
+    for seed in range(6):
+        stripes = dominant_frequency(striped_like_the_carrier(rig, patterns, plain, seed).albedo[patch])
+        ratio = np.linalg.norm(carrier) / np.linalg.norm(stripes)  # the stripes' period over the carrier's
+        angle = np.degrees(
+            np.arccos(np.clip(stripes @ carrier / np.linalg.norm(stripes) / np.linalg.norm(carrier), -1, 1))
+        )
+        assert 0.6 * 0.95 <= ratio <= 1.45 * 1.05 and angle <= 25 + 3, (seed, ratio, angle)
