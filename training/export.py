@@ -3,6 +3,7 @@
     python -m training.export runs/unet/best.pt --out fpp_nodes/fpp_nodes/data/models/unet.onnx
     python -m training.export runs/gpu/best.pt --out model.onnx --data data/fpp/composite
     python -m training.export model.onnx --data data/fpp/composite   # its rules chosen again, card rewritten
+    python -m training.export runs/x/best.pt --out x.onnx --rules-of fpp_nodes/fpp_nodes/data/models/composite.onnx
     python -m training.export model.onnx --data data/fpp/composite --data data/fpp/composite_hard  # and on hard scenes
 
 The ONNX model has one input, `image` (float32, N x 1 x H x W, the camera image / full scale, at 1/
@@ -302,10 +303,17 @@ class Strided(torch.nn.Module):
 
 
 def export(
-    checkpoint: str, out: str, parity_size=(192, 256), metrics: dict | None = None, data: list | None = None
+    checkpoint: str,
+    out: str,
+    parity_size=(192, 256),
+    metrics: dict | None = None,
+    data: list | None = None,
+    rules_of: str | None = None,
 ) -> dict:
     """data: sets of the same rig, the first's calibration on the card, whose validation splits choose a
-    phase-aware model's rules (choose_decoding; default: the set it trained on)."""
+    phase-aware model's rules (choose_decoding; default: the set it trained on). rules_of: another model
+    file whose card's rules the card takes instead (RULES), unchosen: a candidate judged by the shipped
+    network's rules."""
     ckpt = load_checkpoint(checkpoint)
     model, cfg = model_from_checkpoint(ckpt)
     sets = data or [cfg.data]
@@ -392,9 +400,32 @@ def export(
     }
     if phase_aware:
         card["calibration"] = calibration
-        card["decoding"] = choose_decoding(model, sets, sets_calibration(sets))
+        card["decoding"] = rules_from(rules_of) if rules_of else choose_decoding(model, sets, sets_calibration(sets))
     out.with_suffix(".yaml").write_text(yaml.safe_dump(card, sort_keys=False))
     return card
+
+
+# the decoding rules a card holds (choose_decoding's), which DepthModel reads
+RULES = (
+    "min_confidence",
+    "min_modulation",
+    "min_surface_px",
+    "max_roughness_mm",
+    "margin_px",
+    "max_sideband",
+    "max_outside",
+)
+
+
+def rules_from(model_path: str) -> dict:
+    """The rules of another model's card, and where they came from."""
+    card_path = Path(model_path).with_suffix(".yaml")
+    if not card_path.is_file():
+        raise ValueError(f"{model_path} has no card beside it ({card_path.name})")
+    decoding = (yaml.safe_load(card_path.read_text()) or {}).get("decoding") or {}
+    if "min_confidence" not in decoding:
+        raise ValueError(f"{card_path} holds no decoding rules")
+    return {k: decoding[k] for k in RULES if k in decoding} | {"chosen_on": f"the rules of {model_path}'s card"}
 
 
 def sets_calibration(sets: list) -> Calibration:
@@ -433,6 +464,7 @@ def main(argv=None):
         "checkpoint", help="a checkpoint to export, or an exported model (.onnx) whose rules to choose again"
     )
     parser.add_argument("--out", help="the model file to write (a checkpoint's export)")
+    parser.add_argument("--rules-of", help="a model whose card's decoding rules the card takes, unchosen")
     parser.add_argument(
         "--data",
         action="append",
@@ -449,7 +481,7 @@ def main(argv=None):
         if again:
             decoding = choose_again(args.checkpoint, args.data)["decoding"]
         else:
-            card = export(args.checkpoint, args.out, data=args.data)
+            card = export(args.checkpoint, args.out, data=args.data, rules_of=args.rules_of)
     except ValueError as e:
         raise SystemExit(f"export: error: {e}") from None
     if again:
