@@ -40,6 +40,7 @@ from training.export import (
     OUTSIDE_GRID,
     OUTSIDE_REFUSAL_BUDGET,
     ROUGHNESS_GRID,
+    RULES,
     SIDEBAND_GRID,
     SIDEBAND_REFUSAL_BUDGET,
     SILENT_ERROR_BUDGET,
@@ -447,11 +448,20 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
         batch_size=4,
     )
     train(config)
-    # a second stage starts from the first's weights (at a rate too small to move them here)
+    # a second stage starts from the first's weights (at a rate too small to move them here), with the
+    # training scenes of a set striped near the carrier added (the recipe's last stage); another rig's refused
     first = load_checkpoint(tmp_path / "run" / "last.pt")["model"]
-    train(replace(config, out=str(tmp_path / "more"), lr=1e-12, init=str(tmp_path / "run" / "last.pt")))
-    second = load_checkpoint(tmp_path / "more" / "last.pt")["model"]
-    assert all(torch.allclose(first[k], second[k], atol=1e-6) for k in first)
+    stripes = write_set(tmp_path / "data", "composite_stripes", counts=(1, 0, 0), workers=1)
+    more = replace(config, out=str(tmp_path / "more"), lr=1e-12, init=str(tmp_path / "run" / "last.pt"))
+    train(replace(more, extra=str(stripes)))
+    second = load_checkpoint(tmp_path / "more" / "last.pt")
+    assert all(torch.allclose(first[k], second["model"][k], atol=1e-6) for k in first)
+    assert second["counts"] == {"train": 3, "val": 1}
+    info = yaml.safe_load((stripes / "dataset.yaml").read_text())
+    info["calibration"]["camera"]["fx"] += 1.0
+    (stripes / "dataset.yaml").write_text(yaml.safe_dump(info))
+    with pytest.raises(ValueError, match="made with another rig or pattern"):
+        train(replace(more, extra=str(stripes)))
     write_set(tmp_path / "data", "composite", counts=(3, 1, 1), workers=1)  # the set grows after training
     card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m.onnx"))
     assert card["training"]["counts"] == {"train": 2, "val": 1, "test": 1}  # what it learned from
@@ -466,6 +476,13 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
         train(replace(config, out=str(tmp_path / "wider"), width=8, init=str(tmp_path / "m.onnx")))
     model = DepthModel(tmp_path / "m.onnx", threads=1)
     assert model.reads == "composite"
+    # a candidate judged by another card's rules: those rules, unchosen
+    kept = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "kept.onnx"), rules_of=str(tmp_path / "m.onnx"))
+    assert kept["decoding"] == {k: card["decoding"][k] for k in RULES} | {
+        "chosen_on": f"the rules of {tmp_path / 'm.onnx'}'s card"
+    }
+    with pytest.raises(ValueError, match="has no card beside it"):
+        export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "x.onnx"), rules_of=str(tmp_path / "none.onnx"))
     # the four rules chosen together on validation, and the ones the model runs with
     assert model.min_modulation == card["decoding"]["min_modulation"] in FLOOR_GRID
     assert model.decoder.min_surface_px == card["decoding"]["min_surface_px"] in SURFACE_GRID
