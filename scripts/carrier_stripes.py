@@ -1,0 +1,59 @@
+"""Stripes laid near the carrier, the texture one image reads worst: a plane at the stand-off (albedo 0.6
+striped at contrast 0.66, the default rig) under stripes of several periods and angles from the
+fringes' direction, each single-shot model's share of the lit pixels given a depth and of its output off
+by more than 1 mm, then those shares over the angles within 20 degrees and over 45-90 degrees. The
+carrier is 2.2 mm (9.2 px) apart on that plane.
+
+    source scripts/env.bash && python scripts/carrier_stripes.py MODEL.onnx [MODEL2.onnx ...]
+
+One image reads such stripes as a shift of the carrier's phase except through what they do to the code
+gratings (the carrier's sidebands at the codes' frequencies), so a network knows them only from training
+scenes that hold them (training.dataset's composite_stripes; docs/single-shot-trials.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from fpp_nodes.core.metrics import ErrorTotals
+from fpp_nodes.core.model import DepthModel
+from fpp_nodes.core.scenes import plane_scene
+from fpp_nodes.core.simulation import Rig, Scene, render
+
+PERIODS_MM = (1.6, 1.8, 2.0, 2.2, 2.4, 2.7, 3.0)
+ANGLES_DEG = (0, 5, 10, 20, 45, 90)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("models", nargs="+")
+    args = parser.parse_args()
+    models = [DepthModel(path) for path in args.models]
+    rig = Rig()
+    patterns = rig.pattern_set()
+    plane = plane_scene(rig, rig.standoff_mm)
+    x, y = (r * rig.standoff_mm for r in rig.camera().rays())  # mm on the plane
+    near, across = ([ErrorTotals() for _ in models] for _ in range(2))
+    print(f"given / off by > 1 mm, per model: {' | '.join(args.models)}")
+    print(f"{'period':8}" + "".join(f"{f'{a} deg':>{15 * len(models)}}" for a in ANGLES_DEG))
+    for period in PERIODS_MM:
+        cells = []
+        for angle in ANGLES_DEG:
+            u = x * np.cos(np.radians(angle)) + y * np.sin(np.radians(angle))  # across the stripes
+            albedo = 0.6 * (1.0 - 0.66 * ((u / period) % 1.0 < 0.5))
+            capture = render(rig, Scene("stripes", plane.depth_mm, albedo), patterns, np.random.default_rng(31))
+            lit = np.where(capture.valid, capture.depth_mm, np.nan)
+            for model, within, beyond in zip(models, near, across):
+                depth = model(capture.images[patterns.single_shot_index])
+                off = ErrorTotals().add(depth, capture.depth_mm, 1.0)
+                cells.append(f"{ErrorTotals().add(depth, lit).coverage:6.1%}/{off.share_over:5.1%}")
+                (within if angle <= 20 else beyond).add(depth, lit, 1.0)
+        print(f"{period:4.1f} mm " + "".join(f"{c:>15}" for c in cells))
+    for name, totals in (("within 20 deg", near), ("45-90 deg", across)):
+        print(f"{name:14}" + "".join(f"   given {t.coverage:6.1%}, off {t.share_over:6.2%}" for t in totals))
+
+
+if __name__ == "__main__":
+    main()
