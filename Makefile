@@ -107,10 +107,10 @@ composite-model: setup
 	  fpp_nodes/fpp_nodes/data/models/unet.onnx
 
 # A lead (not shipped): the shipped network fine-tuned 12 epochs with 120 training scenes whose surfaces are
-# striped near the carrier (composite_stripes) beside the composite set's 360, judged by the shipped card's rules,
-# then the stripes map for it and the shipped one (docs/single-shot-trials.md, training scenes striped near the carrier). The 120 scenes and the
-# 12 epochs took 13 minutes here (2-core Xeon), the composite set where missing about 6 more; trained as run there,
-# with the composite set's 40 validation scenes of its first make.
+# striped near the carrier (composite_stripes) beside the composite set's 360, judged by the shipped card's
+# rules, then the stripes map for it and the shipped one (docs/single-shot-trials.md, training scenes striped
+# near the carrier). The 120 scenes and the 12 epochs took 13 minutes here (2-core Xeon), the composite set
+# where missing about 6 more; run there with the composite set's 40 validation scenes of its first make.
 .PHONY: stripes-model
 stripes-model: setup
 	$(PY) -m training.dataset --out data/fpp --set composite

@@ -15,8 +15,8 @@ import argparse
 import numpy as np
 
 from fpp_nodes.core.reconstruct import CompositeDecoder, reconstruct_ftp
-from training.dataset import load_sample, split_files
-from training.export import OUTSIDE_GRID, OUTSIDE_REFUSAL_BUDGET, lowest_within, sets_calibration
+from training.dataset import load_sample, sets_calibration, split_files
+from training.export import OUTSIDE_GRID, OUTSIDE_REFUSAL_BUDGET, lowest_within
 
 
 def main(argv=None):

@@ -77,8 +77,8 @@ SETS = {
 # composite_reliefs: low reliefs (the reliefs family: steps of 0.5-8 mm, under and over half a fringe order),
 # which no family of the composite set has; a set of its own, so that the composite set's draws stay as they are.
 # composite_stripes: training scenes of the training families with every surface striped near the carrier
-# (scenes.striped_like_the_carrier), which the composite set's texture draws hardly ever hold: the recipe's last
-# fine-tune adds them to its training scenes.
+# (scenes.striped_like_the_carrier), which the composite set's texture draws hardly ever hold: a lead, not in
+# the shipped recipe (make stripes-model adds them to the composite set's training scenes).
 # composite_hard: validation scenes of the training families under conditions one image reads worst,
 # beyond what training draws (HARD_CONDITIONS): export chooses a network's rules on them beside the
 # composite set's (--data twice), so its silent-error budget is spent where one image is hard to read.
@@ -376,6 +376,14 @@ def read_info(folder) -> dict:
     if not path.is_file():
         raise ValueError(f"{folder} holds no data set (no dataset.yaml): make one with python -m training.dataset")
     return yaml.safe_load(path.read_text())
+
+
+def sets_calibration(sets: list) -> Calibration:
+    """The calibration the sets were made with: one rig's, or an error."""
+    first, *others = (read_info(d)["calibration"] for d in sets)
+    if any(other != first for other in others):
+        raise ValueError(f"{', '.join(map(str, sets))} are not all of one rig (their calibrations differ)")
+    return Calibration.from_dict(first)
 
 
 def split_files(folder, split: str) -> list[Path]:

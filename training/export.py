@@ -49,7 +49,7 @@ from fpp_nodes.core.patterns import PatternSet
 from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits, code_sidebands
 from fpp_nodes.core.workflow import wrong_order_mm
 
-from .dataset import load_sample, read_info, reference_depth, sample_family, split_files
+from .dataset import load_sample, reference_depth, sample_family, sets_calibration, split_files
 from .models import CompositeNet
 from .train import load_checkpoint, load_initial_weights, model_from_checkpoint, model_from_config, predict
 
@@ -426,14 +426,6 @@ def rules_from(model_path: str) -> dict:
     if "min_confidence" not in decoding:
         raise ValueError(f"{card_path} holds no decoding rules")
     return {k: decoding[k] for k in RULES if k in decoding} | {"chosen_on": f"the rules of {model_path}'s card"}
-
-
-def sets_calibration(sets: list) -> Calibration:
-    """The calibration the sets were made with: one rig's, or an error."""
-    first, *others = (read_info(d)["calibration"] for d in sets)
-    if any(other != first for other in others):
-        raise ValueError(f"{', '.join(map(str, sets))} are not all of one rig (their calibrations differ)")
-    return Calibration.from_dict(first)
 
 
 def choose_again(model_path: str, data: list) -> dict:

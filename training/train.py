@@ -30,14 +30,13 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, Dataset, DistributedSampler
 from tqdm import tqdm
 
-from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import PhaseOrderDecoder, network_input
 from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.pictures import depth_colours
 
-from .dataset import load_phase_targets, load_sample, read_info, split_files
+from .dataset import load_phase_targets, load_sample, sets_calibration, split_files
 from .models import ARCHITECTURES, build, pad_to_stride
 
 BCE_RANGE_MM = (1100.0, 1300.0)  # labels map to [0, 1] over this depth range for the BCE loss
@@ -46,7 +45,7 @@ BCE_RANGE_MM = (1100.0, 1300.0)  # labels map to [0, 1] over this depth range fo
 @dataclass
 class TrainConfig:
     data: str = "data/fpp/single"
-    extra: str = ""  # another set of the same rig whose training samples join data's (the recipe: composite_stripes)
+    extra: str = ""  # another set of the same rig whose training samples join data's (e.g. composite_stripes)
     out: str = "runs/unet"
     arch: str = "unet"
     width: int = 16
@@ -419,11 +418,8 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     val_files = split_files(config.data, "val")
     if not train_files or not val_files:
         raise ValueError(f"{config.data} has no train or val samples (make them with python -m training.dataset)")
-    rig = read_info(config.data)["calibration"]
-    calibration = Calibration.from_dict(rig)
+    calibration = sets_calibration([config.data, *([config.extra] if config.extra else [])])
     if config.extra:
-        if read_info(config.extra)["calibration"] != rig:
-            raise ValueError(f"{config.extra} was made with another rig or pattern than {config.data}")
         train_files += split_files(config.extra, "train")
     counts = {"train": len(train_files), "val": len(val_files)}
     if not config.depth_offset_mm:  # the set's rig, not the simulated one: a network starts near its depths

@@ -449,7 +449,7 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     )
     train(config)
     # a second stage starts from the first's weights (at a rate too small to move them here), with the
-    # training scenes of a set striped near the carrier added (the recipe's last stage); another rig's refused
+    # training scenes of a set striped near the carrier added (make stripes-model); another rig's refused
     first = load_checkpoint(tmp_path / "run" / "last.pt")["model"]
     stripes = write_set(tmp_path / "data", "composite_stripes", counts=(1, 0, 0), workers=1)
     more = replace(config, out=str(tmp_path / "more"), lr=1e-12, init=str(tmp_path / "run" / "last.pt"))
@@ -460,7 +460,7 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     info = yaml.safe_load((stripes / "dataset.yaml").read_text())
     info["calibration"]["camera"]["fx"] += 1.0
     (stripes / "dataset.yaml").write_text(yaml.safe_dump(info))
-    with pytest.raises(ValueError, match="made with another rig or pattern"):
+    with pytest.raises(ValueError, match="are not all of one rig"):
         train(replace(more, extra=str(stripes)))
     write_set(tmp_path / "data", "composite", counts=(3, 1, 1), workers=1)  # the set grows after training
     card = export(str(tmp_path / "run" / "last.pt"), str(tmp_path / "m.onnx"))
