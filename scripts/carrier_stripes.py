@@ -47,8 +47,8 @@ def main():
             lit = np.where(capture.valid, capture.depth_mm, np.nan)
             for model, within, beyond in zip(models, near, across):
                 depth = model(capture.images[patterns.single_shot_index])
-                off = ErrorTotals().add(depth, capture.depth_mm, 1.0)
-                cells.append(f"{ErrorTotals().add(depth, lit).coverage:6.1%}/{off.share_over:5.1%}")
+                cell = ErrorTotals().add(depth, lit, 1.0)
+                cells.append(f"{cell.coverage:6.1%}/{cell.share_over:5.1%}")
                 (within if angle <= 20 else beyond).add(depth, lit, 1.0)
         print(f"{period:4.1f} mm " + "".join(f"{c:>15}" for c in cells))
     for name, totals in (("within 20 deg", near), ("45-90 deg", across)):
