@@ -4,8 +4,9 @@ fringes' direction, each single-shot model's share of the lit pixels given a dep
 by more than 1 mm, then those shares over the angles within 20 degrees and over 45-90 degrees. The
 carrier is 2.2 mm (9.2 px) apart on that plane. Then other textures with some of their light near the
 carrier, on scenes (the sculpture and three training families, seeds 6071-6072, every surface of albedo
-0.8 times the texture, as single_shot_conditions.py's): barcodes (bars 2-11 px wide at random) along,
-at 30 degrees to and across the fringes, checkers 8 and 12 px apart, and wood grain; the same shares.
+0.8 times the texture, measured as single_shot_conditions.py measures its own): barcodes (bars 2-11 px
+wide at random) along, at 30 degrees to and across the fringes, checkers 8 and 12 px apart, and wood
+grain; the same shares.
 
     source scripts/env.bash && python scripts/carrier_stripes.py MODEL.onnx [MODEL2.onnx ...]
 
@@ -20,10 +21,11 @@ import argparse
 
 import cv2
 import numpy as np
+from single_shot_conditions import measure  # the conditions' textured scenes, rendered once for all models
 
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.model import DepthModel
-from fpp_nodes.core.scenes import make_scene, plane_scene, textured
+from fpp_nodes.core.scenes import plane_scene
 from fpp_nodes.core.simulation import Rig, Scene, render
 
 PERIODS_MM = (1.6, 1.8, 2.0, 2.2, 2.4, 2.7, 3.0)
@@ -99,13 +101,7 @@ def main():
         print(f"{name:14}" + "".join(f"   given {t.coverage:6.1%}, off {t.share_over:6.2%}" for t in totals))
     print(f"\n{len(TEXTURE_SCENES)} scenes, given / off by > 1 mm, per model")
     for name, texture in SCENE_TEXTURES.items():
-        totals = [ErrorTotals() for _ in models]
-        for kind, seed in TEXTURE_SCENES:
-            scene = textured(rig, patterns, make_scene(rig, kind, seed), texture, seed)
-            capture = render(rig, scene, patterns, np.random.default_rng(seed))
-            lit = np.where(capture.valid, capture.depth_mm, np.nan)
-            for model, total in zip(models, totals):
-                total.add(model(capture.images[patterns.single_shot_index]), lit, 1.0)
+        totals = [within for within, *_ in measure(models, rig, patterns, TEXTURE_SCENES, texture)]
         print(f"{name:26}" + "".join(f"   given {t.coverage:6.1%}, off {t.share_over:6.2%}" for t in totals))
 
 
