@@ -120,6 +120,10 @@ def samples(data: str, split: str, limit: int = 0):
         )
 
 
+# family_table's last row: every sample of the split pooled (what a candidate's bar on validation reads)
+ALL_FAMILIES = "all"
+
+
 def family_table(data: str, model_paths, split: str = "test", limit: int = 0) -> None:
     """Generalisation by scene family, on the split's samples (the families set's test split holds the
     held-out families too): RMSE against the exact depth (a recorded set has none: against its multi-shot
@@ -130,7 +134,7 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
     asks to report) and, for a phase-aware model, the mean confidence in the fringe order over the lit
     pixels that show fringes; beside them FTP on the same images where the set is the composite's, and the
     multi-shot label. Wrong orders: the share of output pixels off by more than half a fringe order
-    (wrong_order_mm)."""
+    (wrong_order_mm). The last row pools every sample of the split (ALL_FAMILIES)."""
     from .figures import load_models
 
     info, calibration = data_set(data)
@@ -152,17 +156,19 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
                 if hasattr(predict, "infer")
                 else (predict(image), None)
             )
-            errors.setdefault((family, name), ErrorTotals()).add(depth, reference, SILENT_ERROR_MM)
-            orders.setdefault((family, name), ErrorTotals()).add(depth, reference, wrong_order)
-            main.setdefault((family, name), ErrorTotals()).add(depth, np.where(on_main, reference, np.nan))
-            apart.setdefault((family, name), ErrorTotals()).add(depth, np.where(on_main, np.nan, reference))
-            if confidence is not None:
-                known = confidence[np.isfinite(confidence) & np.isfinite(reference)]
-                totals = sure.setdefault((family, name), [0.0, 0])
-                totals[0], totals[1] = totals[0] + float(known.sum()), totals[1] + known.size
+            for key in ((family, name), (ALL_FAMILIES, name)):  # each family, and the split as a whole
+                errors.setdefault(key, ErrorTotals()).add(depth, reference, SILENT_ERROR_MM)
+                orders.setdefault(key, ErrorTotals()).add(depth, reference, wrong_order)
+                main.setdefault(key, ErrorTotals()).add(depth, np.where(on_main, reference, np.nan))
+                apart.setdefault(key, ErrorTotals()).add(depth, np.where(on_main, np.nan, reference))
+                if confidence is not None:
+                    known = confidence[np.isfinite(confidence) & np.isfinite(reference)]
+                    totals = sure.setdefault(key, [0.0, 0])
+                    totals[0], totals[1] = totals[0] + float(known.sum()), totals[1] + known.size
     names = [n for n, _ in models]
     held_out = set(info.get("held_out_families", []))
-    families = sorted({f for f, _ in errors}, key=lambda f: (f in held_out, f))  # the held-out last
+    families = sorted({f for f, _ in errors} - {ALL_FAMILIES}, key=lambda f: (f in held_out, f))  # the held-out last
+    families.append(ALL_FAMILIES)
     first = max([14, *(len(f) + 3 for f in families)])  # a recorded set's families are its bags' names
     print(f"{split} split of {data}, by scene family (* held out of training and validation)")
     print(f"{'family':{first}}" + "".join(f"{n[:48]:>51}" for n in names))

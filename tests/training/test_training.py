@@ -32,7 +32,7 @@ from training.dataset import (
     split_files,
     write_set,
 )
-from training.evaluate import REFUSAL_STEPS, exact_outputs, family_table, main_surface, refusal_table
+from training.evaluate import ALL_FAMILIES, REFUSAL_STEPS, exact_outputs, family_table, main_surface, refusal_table
 from training.export import (
     CONFIDENCE_GRID,
     FLOOR_GRID,
@@ -394,9 +394,12 @@ def test_a_data_set_from_a_recorded_bag(tmp_path, capsys, near_rig, near_calibra
         write_bag_set(tmp_path / "bag", tmp_path / "set", calibration_path=default_calibration_path())
     capsys.readouterr()
     family_table(str(tmp_path / "set"), [default_model_path()])
-    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("bag "))  # by recording
+    lines = capsys.readouterr().out.splitlines()
+    row = next(line for line in lines if line.startswith("bag "))  # by recording
     rmse, off, orders, cover = (float(cell.rstrip("%")) for cell in row.split()[1:5])  # the shipped network's cells
     assert rmse < 0.2 and off < 0.5 and orders < 0.05 and cover > 90.0, row
+    pooled = next(line for line in lines if line.startswith(f"{ALL_FAMILIES} "))  # one recording: the same cells
+    assert pooled.split()[1:] == row.split()[1:], (pooled, row)
     refusal_table(str(tmp_path / "set"), default_model_path())  # where the rest of the lit pixels went
     shares = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("bag lit"))
     shares = [float(cell.rstrip("%")) for cell in shares.split()[2:]]
