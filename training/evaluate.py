@@ -156,13 +156,14 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
                 if hasattr(predict, "infer")
                 else (predict(image), None)
             )
+            on, off = np.where(on_main, reference, np.nan), np.where(on_main, np.nan, reference)
+            known = None if confidence is None else confidence[np.isfinite(confidence) & np.isfinite(reference)]
             for key in ((family, name), (ALL_FAMILIES, name)):  # each family, and the split as a whole
                 errors.setdefault(key, ErrorTotals()).add(depth, reference, SILENT_ERROR_MM)
                 orders.setdefault(key, ErrorTotals()).add(depth, reference, wrong_order)
-                main.setdefault(key, ErrorTotals()).add(depth, np.where(on_main, reference, np.nan))
-                apart.setdefault(key, ErrorTotals()).add(depth, np.where(on_main, np.nan, reference))
-                if confidence is not None:
-                    known = confidence[np.isfinite(confidence) & np.isfinite(reference)]
+                main.setdefault(key, ErrorTotals()).add(depth, on)
+                apart.setdefault(key, ErrorTotals()).add(depth, off)
+                if known is not None:
                     totals = sure.setdefault(key, [0.0, 0])
                     totals[0], totals[1] = totals[0] + float(known.sum()), totals[1] + known.size
     names = [n for n, _ in models]
