@@ -95,7 +95,7 @@ def main():
                 depth = model(capture.images[patterns.single_shot_index])
                 cell = ErrorTotals().add(depth, lit, 1.0)
                 cells.append(f"{cell.coverage:6.1%}/{cell.share_over:5.1%}")
-                (within if angle <= 20 else beyond).add(depth, lit, 1.0)
+                (within if angle <= 20 else beyond).merge(cell)
         print(f"{period:4.1f} mm " + "".join(f"{c:>15}" for c in cells))
     for name, totals in (("within 20 deg", near), ("45-90 deg", across)):
         print(f"{name:14}" + "".join(f"   given {t.coverage:6.1%}, off {t.share_over:6.2%}" for t in totals))

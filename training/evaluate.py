@@ -156,16 +156,21 @@ def family_table(data: str, model_paths, split: str = "test", limit: int = 0) ->
                 if hasattr(predict, "infer")
                 else (predict(image), None)
             )
-            on, off = np.where(on_main, reference, np.nan), np.where(on_main, np.nan, reference)
-            known = None if confidence is None else confidence[np.isfinite(confidence) & np.isfinite(reference)]
-            for key in ((family, name), (ALL_FAMILIES, name)):  # each family, and the split as a whole
-                errors.setdefault(key, ErrorTotals()).add(depth, reference, SILENT_ERROR_MM)
-                orders.setdefault(key, ErrorTotals()).add(depth, reference, wrong_order)
-                main.setdefault(key, ErrorTotals()).add(depth, on)
-                apart.setdefault(key, ErrorTotals()).add(depth, off)
-                if known is not None:
-                    totals = sure.setdefault(key, [0.0, 0])
-                    totals[0], totals[1] = totals[0] + float(known.sum()), totals[1] + known.size
+            key = family, name
+            errors.setdefault(key, ErrorTotals()).add(depth, reference, SILENT_ERROR_MM)
+            orders.setdefault(key, ErrorTotals()).add(depth, reference, wrong_order)
+            main.setdefault(key, ErrorTotals()).add(depth, np.where(on_main, reference, np.nan))
+            apart.setdefault(key, ErrorTotals()).add(depth, np.where(on_main, np.nan, reference))
+            if confidence is not None:
+                known = confidence[np.isfinite(confidence) & np.isfinite(reference)]
+                totals = sure.setdefault(key, [0.0, 0])
+                totals[0], totals[1] = totals[0] + float(known.sum()), totals[1] + known.size
+    for (_, name), totals in list(sure.items()):  # the split as a whole: each family's sums pooled
+        pooled = sure.setdefault((ALL_FAMILIES, name), [0.0, 0])
+        pooled[0], pooled[1] = pooled[0] + totals[0], pooled[1] + totals[1]
+    for table in (errors, orders, main, apart):
+        for family, name in list(table):
+            table.setdefault((ALL_FAMILIES, name), ErrorTotals()).merge(table[family, name])
     names = [n for n, _ in models]
     held_out = set(info.get("held_out_families", []))
     families = sorted({f for f, _ in errors} - {ALL_FAMILIES}, key=lambda f: (f in held_out, f))  # the held-out last

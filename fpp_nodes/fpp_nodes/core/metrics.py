@@ -51,6 +51,12 @@ class ErrorTotals:
             self.over += int(np.count_nonzero(np.abs(d) > np.broadcast_to(bound, ok.shape)[ok]))
         return self
 
+    def merge(self, other: ErrorTotals) -> ErrorTotals:
+        """Pool other's sums into these: the errors over both sets of pixels, without adding them again."""
+        for name, value in vars(other).items():
+            setattr(self, name, getattr(self, name) + value)
+        return self
+
     @property
     def rmse(self) -> float:
         return float(np.sqrt(self.squared / self.compared)) if self.compared else float("nan")
