@@ -43,6 +43,7 @@ from fpp_nodes.core.phase import phase_sums
 from fpp_nodes.core.reconstruct import PspReconstructor, full_scale
 from fpp_nodes.core.scenes import (
     SCENE_FAMILIES,
+    barred_near_the_carrier,
     black_print,
     fine_stripes,
     grating_texture,
@@ -68,6 +69,7 @@ SETS = {
     "composite_hard": ("families", (0, 120, 0), 800_000, "composite"),
     "composite_reliefs": ("reliefs", (120, 40, 40), 1_000_000, "composite"),
     "composite_stripes": ("families", (120, 0, 0), 1_200_000, "composite"),
+    "composite_bars": ("families", (180, 0, 0), 1_370_000, "composite"),
 }
 # composite_paper: the composite set's scenes (the same seeds), the paper's single-shot frame: the two
 # patterns compared on the same scenes with the same training budget (README, Table 1).
@@ -79,6 +81,9 @@ SETS = {
 # composite_stripes: training scenes of the training families with every surface striped near the carrier
 # (scenes.striped_like_the_carrier), which the composite set's texture draws hardly ever hold: a lead, not in
 # the shipped recipe (make stripes-model adds them to the composite set's training scenes).
+# composite_bars: training scenes of the training families with bars near the carrier on patches over about
+# half the view (scenes.barred_near_the_carrier), the patches' targets zero: the network is taught to show no
+# fringes where one image cannot tell the albedo from the phase (a lead, make bars-model).
 # composite_hard: validation scenes of the training families under conditions one image reads worst,
 # beyond what training draws (HARD_CONDITIONS): export chooses a network's rules on them beside the
 # composite set's (--data twice), so its silent-error budget is spent where one image is hard to read.
@@ -168,7 +173,7 @@ def make_sample(
     families: bool = False,
     surface_mm: float | None = None,
     hard: bool = False,
-    stripes: bool = False,
+    texture: str = "",
 ) -> dict:
     """Render one scene, reconstruct it with the multi-shot path, keep the single-shot frame.
 
@@ -177,14 +182,17 @@ def make_sample(
     highest frequency (float32, NaN where untrusted), and `fringe`, its numerator and denominator
     (B sin phi, B cos phi over full scale, float16), the phase-aware network's targets. hard: the scene
     under photometry beyond the training ranges or with a texture the generator never draws, drawn
-    half and half; its family is which (HARD_CONDITIONS), `condition` says what it is. stripes: every
-    surface striped near the carrier (striped_like_the_carrier)."""
+    half and half; its family is which (HARD_CONDITIONS), `condition` says what it is. texture "stripes":
+    every surface striped near the carrier (striped_like_the_carrier); "bars": bars near the carrier on
+    patches (barred_near_the_carrier), whose pixels get zero fringe and code targets: no fringes to show."""
     rig, patterns, psp = _worker["rig"], _worker["patterns"], _worker["psp"]
     if families:
         rig = random_rig(np.random.default_rng([seed, 1]), rig)
-    scene, family, condition = make_scene(rig, kind, seed, surface_mm), kind, None
-    if stripes:
+    scene, family, condition, refused = make_scene(rig, kind, seed, surface_mm), kind, None, None
+    if texture == "stripes":
         scene = striped_like_the_carrier(rig, patterns, scene, seed)
+    elif texture == "bars":
+        scene, refused = barred_near_the_carrier(rig, patterns, scene, seed)
     if hard:
         rng = np.random.default_rng([seed, 4])
         if rng.random() < 0.5:
@@ -203,6 +211,9 @@ def make_sample(
     }
     if families:
         sample.update(phase_targets(capture.images, rec, psp.calibration), family=family)
+    if refused is not None:
+        for name in ("fringe", "code"):
+            sample[name] = np.where(refused & np.isfinite(sample[name]), np.float16(0), sample[name])
     if condition is not None:
         sample["condition"] = f"{kind}: {condition}"
     return sample
@@ -232,10 +243,10 @@ def phase_targets(images: np.ndarray, rec, calibration: Calibration) -> dict:
 
 
 def _write(job):
-    kind, seed, path, families, surface_mm, hard, stripes = job
+    kind, seed, path, families, surface_mm, hard, texture = job
     partial = path.with_suffix(".part")
     with open(partial, "wb") as f:
-        np.savez_compressed(f, **make_sample(kind, seed, families, surface_mm, hard, stripes))
+        np.savez_compressed(f, **make_sample(kind, seed, families, surface_mm, hard, texture))
     partial.replace(path)  # a stopped run leaves no half-written sample behind
     return path
 
@@ -246,7 +257,8 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
     counts = tuple(counts or paper_counts)
     calibration = set_calibration(calibration_path or default_calibration_path(), single_shot)
     surface_mm = calibration.reference_depth_mm if set_name == "surface" else None
-    hard, stripes = set_name == "composite_hard", set_name == "composite_stripes"
+    hard = set_name == "composite_hard"
+    texture = {"composite_stripes": "stripes", "composite_bars": "bars"}.get(set_name, "")
     folder = Path(out) / set_name
     jobs = []
     for split, n in zip(SPLITS, counts):
@@ -256,7 +268,7 @@ def write_set(out, set_name: str, counts=None, workers: int = 2, calibration_pat
             if not path.exists():
                 families = kind == "families" or kind in SCENE_FAMILIES  # one family: its samples as the set's
                 kind_i = family_of(split, i) if kind == "families" else kind
-                jobs.append((kind_i, seed_of(set_name, split, i), path, families, surface_mm, hard, stripes))
+                jobs.append((kind_i, seed_of(set_name, split, i), path, families, surface_mm, hard, texture))
     rig, patterns = Rig(), calibration.patterns
     (folder / "dataset.yaml").write_text(
         yaml.safe_dump(

@@ -207,16 +207,23 @@ def reseed_worker(_):
 
 
 PHASE_LOSS_FLOOR = 0.02  # full scale: darker labels weigh as this one (the fringe floor export had chosen)
+# A pixel whose every target is zero shows no fringes (composite_bars' refused patches): it weighs as a pixel
+# of this amplitude. The weight is a dose: 0.1 cost validation 1.8 points of coverage, 0.3 kept it
+# (docs/single-shot-trials.md).
+REFUSED_AMPLITUDE = 0.3
 
 
 def composite_loss(pred, targets):
     """Squared error of the numerators/denominators over the pixels whose label is trusted, each
     divided by the carrier's squared amplitude B^2 (at least PHASE_LOSS_FLOOR^2): a vector error e
     moves the phase by about e / B, and the phase is what the depth comes from, so a dark surface's
-    fringes count as much as a bright one's."""
+    fringes count as much as a bright one's. Pixels to refuse (every target zero) weigh as
+    REFUSED_AMPLITUDE."""
     valid = torch.isfinite(targets).all(dim=1)
     targets = targets.nan_to_num()
+    refused = (targets == 0).all(dim=1)
     amplitude = torch.hypot(targets[:, 0], targets[:, 1]).clamp(min=PHASE_LOSS_FLOOR)
+    amplitude = torch.where(refused, REFUSED_AMPLITUDE, amplitude)
     return 10.0 * (((pred - targets) ** 2).sum(dim=1) / amplitude**2)[valid].mean()
 
 

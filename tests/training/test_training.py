@@ -54,7 +54,7 @@ from training.export import (
     sha256,
 )
 from training.models import CompositeNet, build, layer_counts, pad_to_stride
-from training.train import TrainConfig, load_checkpoint, model_from_checkpoint, train
+from training.train import REFUSED_AMPLITUDE, TrainConfig, composite_loss, load_checkpoint, model_from_checkpoint, train
 
 
 @pytest.fixture(scope="module")
@@ -432,6 +432,29 @@ def test_the_phase_aware_network_trains_exports_and_runs(tmp_path):
     assert r.returncode == 0 and "bust" in r.stdout and "freeform" in r.stdout, r.stderr[-2000:]
     with pytest.raises(ValueError, match="downsample 1"):
         TrainConfig(arch="phase", downsample=2)
+
+
+def test_the_composite_loss_weighs_pixels_to_refuse_as_the_refused_amplitude():
+    """Each trusted pixel's squared error over its carrier amplitude squared; a pixel whose targets are all
+    zero (to show no fringes) over REFUSED_AMPLITUDE squared, not over the floor's (which would weigh it
+    225 times more); an untrusted one (NaN) not at all."""
+    targets = torch.zeros(1, 2 + 2 * len(COMPOSITE_CODES), 1, 3)
+    targets[0, :2, 0, 0] = torch.tensor([0.3, 0.4])  # amplitude 0.5
+    targets[0, 2:, 0, 2] = float("nan")
+    pred = targets.nan_to_num() + torch.tensor([0.03] + [0.0] * (len(targets[0]) - 1))[None, :, None, None]
+    expected = 10.0 * (0.03**2 / 0.5**2 + 0.03**2 / REFUSED_AMPLITUDE**2) / 2
+    assert composite_loss(pred, targets).item() == pytest.approx(expected, rel=1e-5)
+
+
+def test_composite_bars_show_no_fringes_on_part_of_their_trusted_pixels(tmp_path):
+    """composite_bars' training scenes: every target zero (the network is taught to show no fringes) on the
+    barred patches' trusted pixels, which are part, not all, of the scene's."""
+    data = write_set(tmp_path / "data", "composite_bars", counts=(1, 0, 0), workers=1)
+    with np.load(split_files(data, "train")[0]) as z:
+        targets = np.concatenate([z["fringe"], z["code"]]).astype(np.float32)
+    trusted = np.isfinite(targets).all(axis=0)
+    refused = (targets[:, trusted] == 0).all(axis=0).mean()
+    assert 0.05 < refused < 0.95, refused
 
 
 def test_the_composite_network_trains_exports_and_runs(tmp_path):

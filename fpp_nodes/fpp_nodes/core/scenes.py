@@ -502,6 +502,32 @@ def striped_like_the_carrier(rig: Rig, patterns: PatternSet, scene: Scene, seed:
     return Scene(scene.name, scene.depth_mm, scene.albedo * (1.0 - rng.uniform(*TEXTURE_CONTRAST) * stripes))
 
 
+# Bars near the carrier: each bar and gap this many of its periods wide in the projector, at random
+BAR_WIDTH_PERIODS = (0.15, 1.0)
+
+
+def barred_near_the_carrier(rig: Rig, patterns: PatternSet, scene: Scene, seed: int) -> tuple[Scene, np.ndarray]:
+    """The scene with bars of random widths (bars and gaps BAR_WIDTH_PERIODS times the carrier's period,
+    within CARRIER_STRIPE_DEG of its fringes: drawn in the projector), contrast TEXTURE_CONTRAST, on
+    patches over about half the view; and those patches, dilated by a pixel (bool, the camera's pixels).
+    One image cannot tell such an albedo from the carrier's phase, so training teaches the network to
+    show no fringes on the patches (training.dataset's composite_bars) instead of guessing."""
+    renderer = SceneRenderer(rig, scene)
+    xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
+    rng = np.random.default_rng([seed, 6])
+    angle = np.radians(rng.uniform(-CARRIER_STRIPE_DEG, CARRIER_STRIPE_DEG))
+    period = patterns.width / patterns.frequencies[-1]
+    across = np.nan_to_num(xp * np.cos(angle) + yp * np.sin(angle))
+    across = across - across.min() + rng.uniform(0, period)
+    count = int(across.max() / (BAR_WIDTH_PERIODS[0] * period)) + 2
+    edges = np.cumsum(rng.uniform(*BAR_WIDTH_PERIODS, size=count) * period)
+    bars = np.searchsorted(edges, across) % 2 == 1
+    patches = cv2.GaussianBlur(rng.standard_normal(xp.shape), (0, 0), 40.0) > 0
+    albedo = scene.albedo * (1.0 - rng.uniform(*TEXTURE_CONTRAST) * (bars & patches))
+    refused = cv2.dilate((patches & (scene.albedo > 0)).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    return Scene(scene.name, scene.depth_mm, albedo), refused
+
+
 def board_scene(rig: Rig, board, rotation: np.ndarray, translation_mm: np.ndarray) -> Scene:
     """A printed calibration board (core.board.Board) at a pose: board point b is at rotation @ b +
     translation_mm in the camera's frame. Its print is averaged over 4 x 4 points in each pixel, as

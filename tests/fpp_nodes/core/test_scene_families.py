@@ -8,6 +8,7 @@ from fpp_nodes.core.scenes import (
     FAMILY_NAMES,
     SCENE_FAMILIES,
     VOID_DEPTH_MM,
+    barred_near_the_carrier,
     make_scene,
     plane_scene,
     striped_like_the_carrier,
@@ -162,3 +163,36 @@ def test_stripes_near_the_carrier_lie_within_their_ranges_of_its_period_and_dire
             np.arccos(np.clip(stripes @ carrier / np.linalg.norm(stripes) / np.linalg.norm(carrier), -1, 1))
         )
         assert 0.6 * 0.95 <= ratio <= 1.45 * 1.05 and angle <= 25 + 3, (seed, ratio, angle)
+
+
+def runs_inside(values: np.ndarray, inside: np.ndarray) -> list[int]:
+    """The lengths of the runs of equal values along a row that start and end inside (a run cut by the
+    row's leaving inside is not counted)."""
+    runs, start = [], None
+    for x in range(1, len(values)):
+        if not (inside[x] and inside[x - 1]):
+            start = None
+        elif values[x] != values[x - 1]:
+            if start is not None:
+                runs.append(x - start)
+            start = x
+    return runs
+
+
+def test_bars_near_the_carrier_lie_on_the_refused_patches_along_its_fringes(rig, patterns):
+    """barred_near_the_carrier on a plane at the stand-off: the albedo changes only on the patches the
+    network is taught to refuse, which cover about half the view; along the image's rows (the fringes lie
+    near the columns) the bars and gaps are at most a carrier period wide (9.2 px on this plane, 10.2 px
+    along a row at 25 deg, a pixel more for sampling) and some are under half of one. 99% of the runs: a
+    row that leaves a patch for a pixel or two inside its dilated border joins two runs."""
+    plain = plane_scene(rig, rig.standoff_mm)
+    shares, runs = [], []
+    for seed in range(6):
+        barred, refused = barred_near_the_carrier(rig, patterns, plain, seed)
+        assert refused.shape == plain.albedo.shape and refused.dtype == bool
+        assert not (barred.albedo != plain.albedo)[~refused].any()
+        shares.append(refused.mean())
+        for y in range(0, refused.shape[0], 8):
+            runs += runs_inside(barred.albedo[y] < plain.albedo[y], refused[y])
+    assert 0.2 < np.mean(shares) < 0.8, shares
+    assert np.percentile(runs, 99) <= 11.2 and min(runs) <= 4, (np.percentile(runs, 99), min(runs))
