@@ -63,7 +63,7 @@ def main():
     rows = []
     for name, rig, scene in conditions(base):
         renderer = SceneRenderer(rig, scene)
-        xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
+        xp, yp = renderer.projector_xy
         inner = np.zeros(xp.shape, bool)
         inner[BORDER:-BORDER, BORDER:-BORDER] = renderer.lit[renderer.crop][BORDER:-BORDER, BORDER:-BORDER]
         carrier, *codes = composite_phases(composite, xp, yp)

@@ -127,7 +127,7 @@ def scene(design, image_pattern, seed: int, family: str, base: Rig):
     rig = random_rig(np.random.default_rng([seed, 1]), base)
     renderer = SceneRenderer(rig, make_scene(rig, family, seed))
     image = renderer.image(image_pattern, 255, np.random.default_rng(seed))
-    xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
+    xp, yp = renderer.projector_xy
     brightness = renderer.reflect[renderer.crop] * np.float32(0.5 / rig.full_scale)
     return image, np.stack(phases(design, xp, yp, rig)).astype(np.float32), renderer.lit[renderer.crop], brightness
 

@@ -477,8 +477,7 @@ def fine_stripes(period_px: float):
 
 def textured(rig: Rig, patterns: PatternSet, scene: Scene, texture, seed: int) -> Scene:
     """The scene with every surface of albedo 0.8 times texture(rng, patterns, xp, yp)."""
-    renderer = SceneRenderer(rig, scene)
-    xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
+    xp, yp = SceneRenderer(rig, scene).projector_xy
     albedo = 0.8 * texture(np.random.default_rng([seed, 2]), patterns, xp, yp)
     return Scene(scene.name, scene.depth_mm, np.where(scene.albedo > 0, albedo, 0.0))
 
@@ -493,8 +492,7 @@ def striped_like_the_carrier(rig: Rig, patterns: PatternSet, scene: Scene, seed:
     projector), contrast TEXTURE_CONTRAST. One image reads them as a shift of the carrier's phase except
     through what they do to the code gratings (their sidebands), so a network learns that only from
     scenes that hold them (docs/single-shot.md)."""
-    renderer = SceneRenderer(rig, scene)
-    xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
+    xp, yp = SceneRenderer(rig, scene).projector_xy
     rng = np.random.default_rng([seed, 5])
     angle = np.radians(rng.uniform(-CARRIER_STRIPE_DEG, CARRIER_STRIPE_DEG))
     period = patterns.width / patterns.frequencies[-1] * rng.uniform(*CARRIER_STRIPE_PERIODS)
@@ -512,8 +510,7 @@ def barred_near_the_carrier(rig: Rig, patterns: PatternSet, scene: Scene, seed: 
     patches over about half the view; and those patches, dilated by a pixel (bool, the camera's pixels).
     One image cannot tell such an albedo from the carrier's phase, so training teaches the network to
     show no fringes on the patches (training.dataset's composite_bars) instead of guessing."""
-    renderer = SceneRenderer(rig, scene)
-    xp, yp = renderer.xp[renderer.crop], renderer.yp[renderer.crop]
+    xp, yp = SceneRenderer(rig, scene).projector_xy
     rng = np.random.default_rng([seed, 6])
     angle = np.radians(rng.uniform(-CARRIER_STRIPE_DEG, CARRIER_STRIPE_DEG))
     period = patterns.width / patterns.frequencies[-1]

@@ -298,6 +298,11 @@ class SceneRenderer:
         self.crop = (slice(m, m + rig.height), slice(m, m + rig.width))
         self._bilinear = None  # for full pattern images, made on first use
 
+    @property
+    def projector_xy(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where each camera pixel's surface point lands in the projector (its pixels), without the margin."""
+        return self.xp[self.crop], self.yp[self.crop]
+
     def image(self, pattern: np.ndarray, max_value: int, rng: np.random.Generator | None = None) -> np.ndarray:
         """What the camera captures while the projector shows this pattern: a 1 x W line (vertical
         fringes), an H x 1 line (horizontal) or a full H x W image, as patterns.pattern_images gives."""

@@ -19,7 +19,7 @@ from fpp_nodes.core.workflow import simulated_calibration, wrong_order_mm
 
 def exact_phases(renderer, patterns):
     """Carrier and each code's phase at every pixel, from where its surface point lands in the projector."""
-    carrier, *codes = composite_phases(patterns, renderer.xp[renderer.crop], renderer.yp[renderer.crop])
+    carrier, *codes = composite_phases(patterns, *renderer.projector_xy)
     return carrier, codes
 
 
@@ -39,7 +39,7 @@ def test_the_code_models_tell_the_row_phases_across_the_working_range(rig, patte
     for i, (_, fy) in enumerate(patterns.code_frequencies):
         for z in (SURFACE_DEPTH_MM[0], 1175.0, SURFACE_DEPTH_MM[1]):
             renderer = SceneRenderer(rig, plane_scene(rig, z))
-            truth = 2 * np.pi * fy * renderer.yp[renderer.crop] / patterns.height
+            truth = 2 * np.pi * fy * renderer.projector_xy[1] / patterns.height
             error = np.angle(np.exp(1j * (calibration.code_row_phase_at_depth(i, z, u, v) - truth)))
             assert np.abs(error).max() < 0.02, (i, z)
 

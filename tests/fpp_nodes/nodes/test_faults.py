@@ -142,8 +142,7 @@ def test_bad_frames_into_the_single_shot_path(ros_graph):
     far = render(rig, make_scene(rig, "plane", depth_mm=1420), patterns, np.random.default_rng(3)).images
     farther = render(rig, make_scene(rig, "plane", depth_mm=1800), patterns, np.random.default_rng(3)).images
     plane = make_scene(rig, "plane", depth_mm=1150)  # its albedo striped as the fine code falls on it
-    seen = SceneRenderer(rig, plane)
-    code = composite_phases(patterns, seen.xp[seen.crop], seen.yp[seen.crop])[1]
+    code = composite_phases(patterns, *SceneRenderer(rig, plane).projector_xy)[1]
     scene = Scene(plane.name, plane.depth_mm, plane.albedo * (1 - 0.3 * (1 + np.cos(code))))  # contrast 0.6
     striped = render(rig, scene, patterns, np.random.default_rng(3)).images
     inputs.update(
