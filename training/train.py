@@ -37,7 +37,7 @@ from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.pictures import depth_colours
 
 from .dataset import load_phase_targets, load_sample, sets_calibration, split_files
-from .models import ARCHITECTURES, build, pad_to_stride
+from .models import ARCHITECTURES, Separable, build, pad_to_stride
 
 BCE_RANGE_MM = (1100.0, 1300.0)  # labels map to [0, 1] over this depth range for the BCE loss
 
@@ -65,6 +65,7 @@ class TrainConfig:
     limit: int = 0  # use only the first N training samples (0: all)
     crop: int = 0  # train on random square crops of this size (0: whole images); composite only
     stride: int = 2  # the composite network's first layer's (2, or 4: a quarter of the pixels to convolve)
+    separable: int = 0  # the composite network's last middle layers made Separable (from --init: factored)
     workers: int = 0  # data-loading processes (worth it beside a GPU)
     init: str = ""  # start from these weights: a checkpoint, or a model file such as the shipped one
     seed: int = 0
@@ -361,6 +362,10 @@ def load_initial_weights(model: torch.nn.Module, path, network: str) -> None:
         weights = {
             t.name.removeprefix("net."): torch.from_numpy(numpy_helper.to_array(t).copy()) for t in graph.initializer
         }
+    for name, layer in model.named_modules():  # a full convolution where this run has a Separable one
+        if isinstance(layer, Separable) and f"{name}.weight" in weights:
+            full = weights.pop(f"{name}.weight"), weights.pop(f"{name}.bias")
+            weights |= {f"{name}.{k}": v for k, v in Separable.factored(*full).items()}
     expected = model.state_dict()
     wrong = [k for k in expected if k not in weights or weights[k].shape != expected[k].shape]
     if wrong:
@@ -375,7 +380,8 @@ def load_initial_weights(model: torch.nn.Module, path, network: str) -> None:
 def model_from_config(config: dict):
     """(an untrained network, its TrainConfig) of a run's config: a checkpoint's, or a model card's training.config."""
     cfg = TrainConfig(**{k: v for k, v in config.items() if k in {f.name for f in fields(TrainConfig)}})
-    return build(cfg.arch, cfg.width, cfg.dropout, (cfg.depth_offset_mm, cfg.depth_scale_mm), cfg.stride), cfg
+    depth_mm = (cfg.depth_offset_mm, cfg.depth_scale_mm)
+    return build(cfg.arch, cfg.width, cfg.dropout, depth_mm, cfg.stride, cfg.separable), cfg
 
 
 def model_from_checkpoint(ckpt: dict):
@@ -458,7 +464,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     showcase = val_set[0]  # one fixed validation image
 
     depth_mm = (config.depth_offset_mm, config.depth_scale_mm)
-    model = build(config.arch, config.width, config.dropout, depth_mm, config.stride).to(device)
+    model = build(config.arch, config.width, config.dropout, depth_mm, config.stride, config.separable).to(device)
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, factor=0.5, patience=config.patience)
     history, start_epoch, seconds = [], 0, 0.0
