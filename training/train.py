@@ -85,6 +85,11 @@ class TrainConfig:
         if self.crop % 32:
             raise ValueError(f"crop must be a multiple of 32, got {self.crop}")
 
+    def network(self) -> torch.nn.Module:
+        """The untrained network this config describes."""
+        depth_mm = (self.depth_offset_mm, self.depth_scale_mm)
+        return build(self.arch, self.width, self.dropout, depth_mm, self.stride, self.separable)
+
 
 def shrink(image: np.ndarray, factor: int, depth: bool = False) -> np.ndarray:
     """Downsample: area average for the fringe image, nearest for depth (never mixes two surfaces)."""
@@ -380,8 +385,7 @@ def load_initial_weights(model: torch.nn.Module, path, network: str) -> None:
 def model_from_config(config: dict):
     """(an untrained network, its TrainConfig) of a run's config: a checkpoint's, or a model card's training.config."""
     cfg = TrainConfig(**{k: v for k, v in config.items() if k in {f.name for f in fields(TrainConfig)}})
-    depth_mm = (cfg.depth_offset_mm, cfg.depth_scale_mm)
-    return build(cfg.arch, cfg.width, cfg.dropout, depth_mm, cfg.stride, cfg.separable), cfg
+    return cfg.network(), cfg
 
 
 def model_from_checkpoint(ckpt: dict):
@@ -463,8 +467,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     val_loader = DataLoader(val_set, config.batch_size)
     showcase = val_set[0]  # one fixed validation image
 
-    depth_mm = (config.depth_offset_mm, config.depth_scale_mm)
-    model = build(config.arch, config.width, config.dropout, depth_mm, config.stride, config.separable).to(device)
+    model = config.network().to(device)
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimizer, factor=0.5, patience=config.patience)
     history, start_epoch, seconds = [], 0, 0.0
