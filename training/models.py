@@ -199,28 +199,46 @@ class PhaseOrderNet(nn.Module):
         return torch.cat([fringe, order], dim=1)
 
 
-class Separable(nn.Sequential):
-    """A 3 x 3 convolution of C channels as a 3 x 3 per channel (depthwise) then a 1 x 1 mixing them
-    (pointwise): (9 + C) / 9C of its multiply-adds, a sixth at 16 channels."""
+class Separable(nn.Module):
+    """A 3 x 3 convolution of C channels as the sum of rank separable ones, each a 3 x 3 per channel
+    (depthwise) then a 1 x 1 mixing them (pointwise): rank x (9 + C) / 9C of its multiply-adds, a sixth
+    at 16 channels and rank 1. (One depthwise layer of rank x C channels would be the same function,
+    but onnxruntime runs it as slowly as the full convolution: only C -> C depthwise has its fast path.)"""
 
-    def __init__(self, channels: int, dilation: int):
-        super().__init__(
-            nn.Conv2d(channels, channels, 3, padding=dilation, dilation=dilation, groups=channels),
-            nn.Conv2d(channels, channels, 1),
+    def __init__(self, channels: int, dilation: int, rank: int = 1):
+        super().__init__()
+        self.terms = nn.ModuleList(
+            nn.Sequential(
+                nn.Conv2d(channels, channels, 3, padding=dilation, dilation=dilation, groups=channels),
+                nn.Conv2d(channels, channels, 1),
+            )
+            for _ in range(rank)
         )
 
+    def forward(self, x):
+        y = self.terms[0](x)
+        for term in self.terms[1:]:
+            y = y + term(x)
+        return y
+
     @staticmethod
-    def factored(weight: torch.Tensor, bias: torch.Tensor) -> dict:
+    def factored(weight: torch.Tensor, bias: torch.Tensor, rank: int = 1) -> dict:
         """Its weights nearest a full 3 x 3 convolution's (weight (C, C, 3, 3), bias), to start from a
-        trained network: per input channel, the best product (least squares, the SVD's first term) of a
-        column of output weights and one 3 x 3 kernel; exact where the full one's kernels of each input
-        channel are multiples of one."""
+        trained network: per input channel, the best sum of rank products (least squares, the SVD's first
+        terms) of a column of output weights and one 3 x 3 kernel; exact where the full one's kernels of
+        each input channel span no more than rank kernels."""
         outputs, inputs = weight.shape[:2]
-        depthwise, pointwise = torch.empty(inputs, 1, 3, 3), torch.empty(outputs, inputs, 1, 1)
-        for i in range(inputs):
-            u, s, vh = torch.linalg.svd(weight[:, i].reshape(outputs, 9), full_matrices=False)
-            pointwise[:, i, 0, 0], depthwise[i, 0] = u[:, 0] * s[0], vh[0].reshape(3, 3)
-        return {"0.weight": depthwise, "0.bias": torch.zeros(inputs), "1.weight": pointwise, "1.bias": bias}
+        # per input channel i: its kernels (outputs x 9) = sum over k of u[i, :, k] s[i, k] vh[i, k]
+        u, s, vh = torch.linalg.svd(weight.transpose(0, 1).reshape(inputs, outputs, 9), full_matrices=False)
+        weights = {}
+        for k in range(rank):
+            weights |= {
+                f"terms.{k}.0.weight": vh[:, k].reshape(inputs, 1, 3, 3),
+                f"terms.{k}.0.bias": torch.zeros(inputs),
+                f"terms.{k}.1.weight": (u[:, :, k] * s[:, k, None]).T.reshape(outputs, inputs, 1, 1),
+                f"terms.{k}.1.bias": bias if k == 0 else torch.zeros(outputs),
+            }
+        return weights
 
 
 class CompositeNet(nn.Module):
@@ -234,15 +252,22 @@ class CompositeNet(nn.Module):
     (fpp_nodes.core.model.CompositeDecoder).
     stride: the first layer's, undone at the end by a pixel shuffle (export leaves that to DepthModel):
     2, or 4 for a quarter of the pixels to convolve (docs/single-shot-trials.md, the network at a quarter of
-    the resolution). separable: how many of the last middle layers are Separable (a lead for slower CPUs:
-    docs/single-shot-trials.md, separable layers).
+    the resolution). separable: how many of the last middle layers are Separable, each the sum of
+    separable_rank separable ones (a lead for slower CPUs: docs/single-shot-trials.md, separable layers).
     Output (B, 2 x gratings, H, W): carrier numerator, denominator, then each code's (the composite's
     gratings: its carrier and patterns.COMPOSITE_CODES; training/compare_codes.py tries others).
     """
 
     DILATIONS = {2: (1, 2, 4, 2), 4: (1, 1, 2, 1)}  # by stride: fields of 42 and 52 pixels
 
-    def __init__(self, width: int = 16, gratings: int = 1 + len(COMPOSITE_CODES), stride: int = 2, separable: int = 0):
+    def __init__(
+        self,
+        width: int = 16,
+        gratings: int = 1 + len(COMPOSITE_CODES),
+        stride: int = 2,
+        separable: int = 0,
+        separable_rank: int = 1,
+    ):
         super().__init__()
         if stride not in self.DILATIONS:
             raise ValueError(f"stride must be one of {sorted(self.DILATIONS)}, got {stride}")
@@ -250,8 +275,10 @@ class CompositeNet(nn.Module):
         layers = [nn.Conv2d(1, p, 3 * stride, stride=stride, padding=stride), nn.ReLU(inplace=True)]
         dilations = self.DILATIONS[stride]
         for i, dilation in enumerate(dilations):
-            full = i < len(dilations) - separable
-            layers += [nn.Conv2d(p, p, 3, padding=dilation, dilation=dilation) if full else Separable(p, dilation)]
+            if i < len(dilations) - separable:
+                layers += [nn.Conv2d(p, p, 3, padding=dilation, dilation=dilation)]
+            else:
+                layers += [Separable(p, dilation, separable_rank)]
             layers += [nn.ReLU(inplace=True)]
         self.net = nn.Sequential(*layers, nn.Conv2d(p, 2 * gratings * stride * stride, 1))
         self.context = nn.Sequential(
@@ -290,9 +317,10 @@ def build(
     depth_mm: tuple[float, float],
     stride: int = 2,
     separable: int = 0,
+    separable_rank: int = 1,
 ) -> nn.Module:
     """depth_mm: (offset, scale) of the depth-regressing networks' output in millimetres (the training
-    config holds them, so checkpoints do); stride and separable: the composite network's."""
+    config holds them, so checkpoints do); stride, separable and separable_rank: the composite network's."""
     depth_offset, depth_scale = depth_mm
     if architecture == "unet":
         return EncoderDecoder(width, True, dropout, depth_offset, depth_scale)
@@ -303,7 +331,7 @@ def build(
     if architecture == "phase":
         return PhaseOrderNet(width)
     if architecture == "composite":
-        return CompositeNet(width, stride=stride, separable=separable)
+        return CompositeNet(width, stride=stride, separable=separable, separable_rank=separable_rank)
     raise ValueError(f"architecture must be one of {', '.join(ARCHITECTURES)}, got {architecture!r}")
 
 

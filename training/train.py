@@ -66,6 +66,7 @@ class TrainConfig:
     crop: int = 0  # train on random square crops of this size (0: whole images); composite only
     stride: int = 2  # the composite network's first layer's (2, or 4: a quarter of the pixels to convolve)
     separable: int = 0  # the composite network's last middle layers made Separable (from --init: factored)
+    separable_rank: int = 1  # the separable convolutions each Separable layer sums
     workers: int = 0  # data-loading processes (worth it beside a GPU)
     init: str = ""  # start from these weights: a checkpoint, or a model file such as the shipped one
     seed: int = 0
@@ -77,7 +78,7 @@ class TrainConfig:
             raise ValueError(f"loss must be mse or bce, got {self.loss!r}")
         if self.workers < 0:
             raise ValueError(f"workers must be >= 0, got {self.workers}")
-        for name in ("width", "downsample", "epochs", "batch_size", "patience"):
+        for name in ("width", "downsample", "epochs", "batch_size", "patience", "separable_rank"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.arch in ("phase", "composite") and self.downsample != 1:
@@ -88,7 +89,7 @@ class TrainConfig:
     def network(self) -> torch.nn.Module:
         """The untrained network this config describes."""
         depth_mm = (self.depth_offset_mm, self.depth_scale_mm)
-        return build(self.arch, self.width, self.dropout, depth_mm, self.stride, self.separable)
+        return build(self.arch, self.width, self.dropout, depth_mm, self.stride, self.separable, self.separable_rank)
 
 
 def shrink(image: np.ndarray, factor: int, depth: bool = False) -> np.ndarray:
@@ -370,7 +371,7 @@ def load_initial_weights(model: torch.nn.Module, path, network: str) -> None:
     for name, layer in model.named_modules():  # a full convolution where this run has a Separable one
         if isinstance(layer, Separable) and f"{name}.weight" in weights:
             full = weights.pop(f"{name}.weight"), weights.pop(f"{name}.bias")
-            weights |= {f"{name}.{k}": v for k, v in Separable.factored(*full).items()}
+            weights |= {f"{name}.{k}": v for k, v in Separable.factored(*full, len(layer.terms)).items()}
     expected = model.state_dict()
     wrong = [k for k in expected if k not in weights or weights[k].shape != expected[k].shape]
     if wrong:

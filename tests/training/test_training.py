@@ -465,28 +465,31 @@ def test_composite_bars_show_no_fringes_on_part_of_their_trusted_pixels(tmp_path
     assert 0.05 < refused < 0.95, refused
 
 
-def test_separable_layers_start_from_a_full_networks_weights(tmp_path):
-    """A full composite network's last two middle layers load into Separable ones (make separable-model):
-    exactly where each input channel's kernels are multiples of one kernel (the same outputs), and
-    otherwise as the product nearest them (no better rank-one fit exists)."""
+@pytest.mark.parametrize("rank", [1, 2])
+def test_separable_layers_start_from_a_full_networks_weights(tmp_path, rank):
+    """A full composite network's last two middle layers load into Separable ones of rank products per
+    input channel (make separable-model): exactly where each input channel's kernels span rank kernels
+    (the same outputs), and otherwise as the sum nearest them (no better fit of that rank exists)."""
     torch.manual_seed(0)
     full = CompositeNet(8)
-    for layer in (full.net[6], full.net[8]):
-        layer.weight.data = torch.randn(8, 8, 1, 1) * torch.randn(1, 8, 3, 3)  # separable kernels
+    for layer in (full.net[6], full.net[8]):  # each input channel's kernels: rank kernels mixed
+        layer.weight.data = torch.einsum("oir,rixy->oixy", torch.randn(8, 8, rank), torch.randn(rank, 8, 3, 3))
     torch.save({"format": "fpp_checkpoint", "model": full.state_dict()}, tmp_path / "full.pt")
-    separable = CompositeNet(8, separable=2)
+    separable = CompositeNet(8, separable=2, separable_rank=rank)
     assert [isinstance(separable.net[i], Separable) for i in (2, 4, 6, 8)] == [False, False, True, True]
-    load_initial_weights(separable, tmp_path / "full.pt", "composite, width 8, separable 2")
+    load_initial_weights(separable, tmp_path / "full.pt", f"composite, width 8, separable 2 of rank {rank}")
     image = torch.rand(1, 1, 64, 96)
     with torch.no_grad():
         assert torch.allclose(separable(image), full(image), atol=1e-5)
     weight = torch.randn(8, 8, 3, 3)
-    factors = Separable.factored(weight, torch.zeros(8))
-    product = factors["1.weight"] * factors["0.weight"].transpose(0, 1)  # (out, in, 3, 3)
+    factors = Separable.factored(weight, torch.zeros(8), rank)
+    product = sum(
+        factors[f"terms.{k}.1.weight"] * factors[f"terms.{k}.0.weight"].transpose(0, 1) for k in range(rank)
+    )  # (out, in, 3, 3)
     for i in range(8):
         kernels = weight[:, i].reshape(8, 9)
         missed = torch.linalg.norm(kernels - product[:, i].reshape(8, 9)) ** 2
-        assert torch.isclose(missed, (torch.linalg.svdvals(kernels)[1:] ** 2).sum(), rtol=1e-4)
+        assert torch.isclose(missed, (torch.linalg.svdvals(kernels)[rank:] ** 2).sum(), rtol=1e-4)
 
 
 def test_the_composite_network_trains_exports_and_runs(tmp_path):
