@@ -271,9 +271,11 @@ class CompositeNet(nn.Module):
         super().__init__()
         if stride not in self.DILATIONS:
             raise ValueError(f"stride must be one of {sorted(self.DILATIONS)}, got {stride}")
+        dilations = self.DILATIONS[stride]
+        if not 0 <= separable <= len(dilations):
+            raise ValueError(f"separable must be 0-{len(dilations)} (of the middle layers), got {separable}")
         p, self.pixel_shuffle = width, stride
         layers = [nn.Conv2d(1, p, 3 * stride, stride=stride, padding=stride), nn.ReLU(inplace=True)]
-        dilations = self.DILATIONS[stride]
         for i, dilation in enumerate(dilations):
             if i < len(dilations) - separable:
                 layers += [nn.Conv2d(p, p, 3, padding=dilation, dilation=dilation)]

@@ -477,6 +477,8 @@ def test_separable_layers_start_from_a_full_networks_weights(tmp_path, rank):
     torch.save({"format": "fpp_checkpoint", "model": full.state_dict()}, tmp_path / "full.pt")
     separable = CompositeNet(8, separable=2, separable_rank=rank)
     assert [isinstance(separable.net[i], Separable) for i in (2, 4, 6, 8)] == [False, False, True, True]
+    with pytest.raises(ValueError, match="separable must be 0-4"):
+        CompositeNet(8, separable=5)
     load_initial_weights(separable, tmp_path / "full.pt", f"composite, width 8, separable 2 of rank {rank}")
     image = torch.rand(1, 1, 64, 96)
     with torch.no_grad():
