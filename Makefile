@@ -128,16 +128,17 @@ stripes-model bars-model: %-model: setup
 	  --rules-of fpp_nodes/fpp_nodes/data/models/composite.onnx
 	$(PY) scripts/carrier_stripes.py runs/$*/$*.onnx fpp_nodes/fpp_nodes/data/models/composite.onnx
 
-# A lead for slower CPUs (not shipped): the composite network with its last two middle layers Separable, each the sum
-# of two separable convolutions (a 3 x 3 per channel, then a 1 x 1; the network's thread a fifth faster), fine-tuned
-# 45 epochs from the shipped weights (those two layers factored from its full ones: the SVD's first two terms per input
-# channel; 57 minutes on a 2-core AVX2 EPYC beside the composite set's first 40 validation scenes), judged by the
-# shipped card's rules on all 200 (docs/single-shot-trials.md; --separable-rank 1 is the first trial's, a third faster).
+# A lead for slower CPUs (not shipped): the composite network with its four middle layers Separable, each the sum of
+# two separable convolutions (a 3 x 3 per channel, then a 1 x 1; the network's thread 11-41% faster), fine-tuned 45
+# epochs from the shipped weights (those layers factored from its full ones: the SVD's first two terms per input
+# channel; 79 minutes on a 2-core AVX2 EPYC beside the composite set's first 40 validation scenes), judged by the
+# shipped card's rules on all 200 (docs/single-shot-trials.md; --separable 2 is the rank-two trial's, the last two
+# layers only; --separable-rank 1 the first trial's).
 .PHONY: separable-model
 separable-model: setup
 	$(PY) -m training.dataset --out data/fpp --set composite
 	$(PY) -m training.train --data data/fpp/composite --arch composite --width 16 --downsample 1 --crop 160 \
-	  --batch-size 8 --patience 4 --epochs 45 --lr 5e-4 --separable 2 --separable-rank 2 \
+	  --batch-size 8 --patience 4 --epochs 45 --lr 5e-4 --separable 4 --separable-rank 2 \
 	  --init fpp_nodes/fpp_nodes/data/models/composite.onnx --out runs/separable
 	$(PY) -m training.dataset --out data/fpp --set composite --counts 360,200,120
 	$(PY) -m training.export runs/separable/best.pt --out runs/separable/separable.onnx \
