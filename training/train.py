@@ -67,6 +67,7 @@ class TrainConfig:
     stride: int = 2  # the composite network's first layer's (2, or 4: a quarter of the pixels to convolve)
     separable: int = 0  # the composite network's last middle layers made Separable (from --init: factored)
     separable_rank: int = 1  # the separable convolutions each Separable layer sums
+    defocus_px: float = 0.0  # composite: half the training crops blurred by one more Gaussian of sigma up to this
     workers: int = 0  # data-loading processes (worth it beside a GPU)
     init: str = ""  # start from these weights: a checkpoint, or a model file such as the shipped one
     seed: int = 0
@@ -76,6 +77,8 @@ class TrainConfig:
             raise ValueError(f"arch must be one of {ARCHITECTURES}, got {self.arch!r}")
         if self.loss not in ("mse", "bce"):
             raise ValueError(f"loss must be mse or bce, got {self.loss!r}")
+        if self.defocus_px < 0:
+            raise ValueError(f"defocus_px must be >= 0, got {self.defocus_px}")
         if self.workers < 0:
             raise ValueError(f"workers must be >= 0, got {self.workers}")
         for name in ("width", "downsample", "epochs", "batch_size", "patience", "separable_rank"):
@@ -136,6 +139,29 @@ def photometric(rng, image: np.ndarray) -> tuple[np.ndarray, np.float32]:
     return np.clip(image, 0, 1).astype(np.float32), np.float32(gain)
 
 
+UNTRUSTED_BLURRED_IN = 0.05
+
+
+def defocused(image: np.ndarray, targets: np.ndarray, sigma_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """The image and composite targets as a camera defocused by one more Gaussian of sigma_px would give
+    them. The carrier's numerator and denominator are sums of images, so blurring them is exactly what the
+    multi-shot path would measure; the codes keep their phase (the labelled depth's) and take the blurred
+    carrier's amplitude, as phase_targets makes them. Untrusted pixels (NaN) stay untrusted, and so do those
+    that take more than UNTRUSTED_BLURRED_IN of their light from them (what they show is no longer known)."""
+
+    def blur(a):
+        return cv2.GaussianBlur(a, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
+
+    untrusted = blur((~np.isfinite(targets).all(axis=0)).astype(np.float32)) > UNTRUSTED_BLURRED_IN
+    carrier = np.stack([blur(np.nan_to_num(t)) for t in targets[:2]])
+    codes = targets[2:].reshape(-1, 2, *image.shape)
+    phase = np.arctan2(codes[:, 0], codes[:, 1])
+    codes = np.hypot(*carrier) * np.stack([np.sin(phase), np.cos(phase)], axis=1)
+    targets = np.concatenate([carrier, codes.reshape(-1, *image.shape)])
+    targets[:, untrusted] = np.nan
+    return blur(image), targets
+
+
 class FringePhaseSet(Dataset):
     """(image [0, 1], fringe numerator/denominator, r in orders, label mm) tensors at full resolution
     for the phase-aware network; r is the multi-shot phase relative to the calibration's
@@ -174,10 +200,12 @@ class CompositeSet(Dataset):
     composite network, random crops of crop pixels (0: whole images) when training, placed on the
     network's stride grid (as a whole image is)."""
 
-    def __init__(self, files, augment: bool = False, crop: int = 0, seed: int = 0, stride: int = 2):
+    def __init__(
+        self, files, augment: bool = False, crop: int = 0, seed: int = 0, stride: int = 2, defocus_px: float = 0.0
+    ):
         with ThreadPoolExecutor(os.cpu_count()) as pool:  # unzipping runs outside the GIL
             self.items = list(pool.map(self._load, files))
-        self.augment, self.crop, self.stride = augment, crop, stride
+        self.augment, self.crop, self.stride, self.defocus_px = augment, crop, stride, defocus_px
         self.rng = np.random.default_rng(seed)
 
     @staticmethod
@@ -195,11 +223,20 @@ class CompositeSet(Dataset):
 
     def __getitem__(self, i):
         image, targets, label = self.items[i % len(self.items)]
+        defocus = self.augment and self.defocus_px > 0 and self.rng.random() < 0.5
+        sigma = self.rng.uniform(0, self.defocus_px) if defocus else 0.0
         if self.crop:
             y, x = (self.stride * self.rng.integers(0, (n - self.crop) // self.stride + 1) for n in image.shape)
-            window = (slice(y, y + self.crop), slice(x, x + self.crop))
+            reach = int(np.ceil(4 * sigma))  # what lies this near the crop blurs into it
+            y0, x0 = max(y - reach, 0), max(x - reach, 0)
+            window = (slice(y0, y + self.crop + reach), slice(x0, x + self.crop + reach))
             image, targets, label = image[window], targets[(slice(None),) + window], label[window]
+            keep = (slice(y - y0, y - y0 + self.crop), slice(x - x0, x - x0 + self.crop))
         image, targets = network_input(image), targets.astype(np.float32)
+        if sigma:
+            image, targets = defocused(image, targets, sigma)
+        if self.crop:
+            image, targets, label = image[keep], targets[(slice(None),) + keep], label[keep]
         if self.augment:
             image, gain = photometric(self.rng, image)
             targets = targets * gain
@@ -446,7 +483,9 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
     if phase_aware:
         if config.arch == "composite":
             decoder = CompositeDecoder(calibration)
-            train_set = CompositeSet(train_files, config.augment, config.crop, config.seed + rank, config.stride)
+            train_set = CompositeSet(
+                train_files, config.augment, config.crop, config.seed + rank, config.stride, config.defocus_px
+            )
             val_set = CompositeSet(val_files)
         else:
             decoder = PhaseOrderDecoder(calibration)
