@@ -79,6 +79,8 @@ class TrainConfig:
             raise ValueError(f"loss must be mse or bce, got {self.loss!r}")
         if self.defocus_px < 0:
             raise ValueError(f"defocus_px must be >= 0, got {self.defocus_px}")
+        if self.defocus_px and self.arch != "composite":
+            raise ValueError(f"defocus_px blurs the composite network's targets: arch {self.arch} has none")
         if self.workers < 0:
             raise ValueError(f"workers must be >= 0, got {self.workers}")
         for name in ("width", "downsample", "epochs", "batch_size", "patience", "separable_rank"):

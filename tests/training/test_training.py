@@ -442,6 +442,8 @@ def test_the_phase_aware_network_trains_exports_and_runs(tmp_path):
     assert r.returncode == 0 and "bust" in r.stdout and "freeform" in r.stdout, r.stderr[-2000:]
     with pytest.raises(ValueError, match="downsample 1"):
         TrainConfig(arch="phase", downsample=2)
+    with pytest.raises(ValueError, match="defocus_px blurs the composite"):
+        TrainConfig(arch="phase", downsample=1, defocus_px=1.0)
 
 
 def test_the_composite_loss_weighs_pixels_to_refuse_as_the_refused_amplitude():
@@ -517,7 +519,9 @@ def test_the_composite_network_trains_exports_and_runs(tmp_path):
     # training scenes of a set striped near the carrier added (make stripes-model); another rig's refused
     first = load_checkpoint(tmp_path / "run" / "last.pt")["model"]
     stripes = write_set(tmp_path / "data", "composite_stripes", counts=(1, 0, 0), workers=1)
-    more = replace(config, out=str(tmp_path / "more"), lr=1e-12, init=str(tmp_path / "run" / "last.pt"))
+    more = replace(  # and half its crops defocused (make separable-model's last stage)
+        config, out=str(tmp_path / "more"), lr=1e-12, init=str(tmp_path / "run" / "last.pt"), defocus_px=2.5
+    )
     train(replace(more, extra=str(stripes)))
     second = load_checkpoint(tmp_path / "more" / "last.pt")
     assert all(torch.allclose(first[k], second["model"][k], atol=1e-6) for k in first)
