@@ -129,7 +129,7 @@ stripes-model bars-model: %-model: setup
 	$(PY) scripts/carrier_stripes.py runs/$*/$*.onnx fpp_nodes/fpp_nodes/data/models/composite.onnx
 
 # A lead for slower CPUs (not shipped): the composite network with its four middle layers Separable, each the sum of
-# two separable convolutions (a 3 x 3 per channel, then a 1 x 1; the network's thread 11-41% faster), fine-tuned 45
+# two separable convolutions (a 3 x 3 per channel, then a 1 x 1; the network's thread 11-42% faster), fine-tuned 45
 # epochs from the shipped weights (those layers factored from its full ones: the SVD's first two terms per input
 # channel; 79 minutes on a 2-core AVX2 EPYC beside the composite set's first 40 validation scenes), then 25 more with
 # half the crops defocused by up to 2.5 px more (39 minutes: without them it read a defocused carrier worse than the
