@@ -58,9 +58,12 @@ from training.export import (
 from training.models import CompositeNet, Separable, build, layer_counts, pad_to_stride
 from training.train import (
     REFUSED_AMPLITUDE,
+    VALIDATION_BATCH,
+    FringeDepthSet,
     TrainConfig,
     composite_loss,
     defocused,
+    evaluate,
     load_checkpoint,
     load_initial_weights,
     model_from_checkpoint,
@@ -97,6 +100,34 @@ def test_samples_pair_one_fringe_image_with_its_multi_shot_label(tiny_set):
     ok = np.isfinite(label) & np.isfinite(truth)
     assert ok.mean() > 0.9 and np.sqrt(np.mean((label - truth)[ok] ** 2)) < 0.06  # the multi-shot label is good
     assert yaml.safe_load((tiny_set / "dataset.yaml").read_text())["counts"] == {"train": 3, "val": 1, "test": 1}
+
+
+def test_the_validation_loss_does_not_depend_on_the_training_batch(tiny_set, tmp_path):
+    """A mean of per-batch means taken at the training batch made a GPU run's validation loss (batch 32)
+    incomparable with the CPU recipes' (batch 8): validation takes VALIDATION_BATCH whatever the
+    training batch. Two validation scenes, one with most of its label untrusted and the rest 40 mm off,
+    so that the batching moves the loss."""
+    data = tmp_path / "set"
+    (data / "train").mkdir(parents=True)
+    (data / "val").mkdir()
+    (data / "dataset.yaml").write_text((tiny_set / "dataset.yaml").read_text())
+    (data / "train" / "a.npz").write_bytes(split_files(tiny_set, "train")[0].read_bytes())
+    (data / "val" / "a.npz").write_bytes(split_files(tiny_set, "val")[0].read_bytes())
+    with np.load(split_files(tiny_set, "test")[0]) as z:
+        sample = dict(z)
+    sample["label"][: 3 * len(sample["label"]) // 4] = np.nan
+    sample["label"] += 40.0
+    np.savez_compressed(data / "val" / "b.npz", **sample)
+    cfg = TrainConfig(data=str(data), out=str(tmp_path / "run"), arch="unet", width=4, epochs=1, batch_size=1)
+    last = train(replace(cfg, depth_offset_mm=1150.0))
+    model, cfg = model_from_checkpoint(load_checkpoint(tmp_path / "run" / "best.pt"))
+    val_set = FringeDepthSet(split_files(data, "val"), cfg.downsample)
+    together, one_by_one = (
+        evaluate(model, torch.utils.data.DataLoader(val_set, n), torch.device("cpu"))["loss"]
+        for n in (VALIDATION_BATCH, 1)
+    )
+    assert last["val_loss"] == pytest.approx(together, rel=1e-5)
+    assert abs(one_by_one - together) > 0.01 * together  # the batching does move it on this set
 
 
 def test_no_two_sets_share_a_scene_but_the_pattern_comparison():
