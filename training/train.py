@@ -304,8 +304,9 @@ def predict(model, image):
 # for the per-epoch numbers only (export chooses the model's threshold): the phase-order network's
 # probability that the order is right; the composite's vote
 VALIDATION_CONFIDENCE = {"phase": 0.99, "composite": 0.8}
-# The validation loss is a mean of per-batch means, so it depends on the batch: validation takes this one
-# whatever the training batch, so that runs compare (one network: 0.97 at 8, 0.80 at a GPU run's 32).
+# The validation loss is a mean of per-batch means (each over its batch's trusted pixels), weighted by the
+# batch's scenes, so it depends on the batch: validation takes this one whatever the training batch, so
+# that runs compare (one network: 0.97 at 8, 0.80 at a GPU run's 32).
 VALIDATION_BATCH = 8
 
 
@@ -314,7 +315,7 @@ def evaluate_phase(model, loader, device, decoder) -> dict:
     """Loss; RMSE (mm) against the label, coverage of it and the share of pixels off by more than
     1 mm, over the pixels confident at VALIDATION_CONFIDENCE (the phase-order or composite network)."""
     model.eval()
-    losses, errors = [], ErrorTotals()
+    losses, scenes, errors = [], [], ErrorTotals()
     for image, *targets, label in loader:
         pred = predict(model, image.to(device))
         targets = [t.to(device) for t in targets]
@@ -325,13 +326,14 @@ def evaluate_phase(model, loader, device, decoder) -> dict:
                 else phase_order_loss(pred, *targets)
             ).item()
         )
+        scenes.append(len(image))
         for out, ref in zip(pred.cpu().numpy(), label[:, 0].numpy()):
             depth, _ = decoder(
                 out, VALIDATION_CONFIDENCE["composite" if isinstance(decoder, CompositeDecoder) else "phase"]
             )
             errors.add(depth, ref, bound=1.0)
     return {
-        "loss": float(np.mean(losses)),
+        "loss": float(np.average(losses, weights=scenes)),
         "rmse_mm": errors.rmse,
         "mre": float("nan"),
         "coverage": errors.coverage,
@@ -343,15 +345,16 @@ def evaluate_phase(model, loader, device, decoder) -> dict:
 def evaluate(model, loader, device, loss_kind: str = "mse") -> dict:
     """Loss, RMSE (mm) and MRE against the labels and against the exact depth."""
     model.eval()
-    to_label, to_truth, losses = ErrorTotals(), ErrorTotals(), []
+    to_label, to_truth, losses, scenes = ErrorTotals(), ErrorTotals(), [], []
     for image, label, truth in loader:
         pred = predict(model, image.to(device))
         losses.append(masked_loss(pred, label.to(device), loss_kind).item())
+        scenes.append(len(image))
         pred = pred.cpu().numpy()
         to_label.add(pred, label.numpy())
         to_truth.add(pred, truth.numpy())
     return {
-        "loss": float(np.mean(losses)),
+        "loss": float(np.average(losses, weights=scenes)),
         "rmse_mm": to_label.rmse,
         "mre": to_label.mre,
         "truth_rmse_mm": to_truth.rmse,

@@ -105,8 +105,8 @@ def test_samples_pair_one_fringe_image_with_its_multi_shot_label(tiny_set):
 def test_the_validation_loss_does_not_depend_on_the_training_batch(tiny_set, tmp_path):
     """A mean of per-batch means taken at the training batch made a GPU run's validation loss (batch 32)
     incomparable with the CPU recipes' (batch 8): validation takes VALIDATION_BATCH whatever the
-    training batch. Two validation scenes, one with most of its label untrusted and the rest 40 mm off,
-    so that the batching moves the loss."""
+    training batch, each batch weighed by its scenes. Two validation scenes, one with most of its label
+    untrusted and the rest 40 mm off, so that the batching moves the loss."""
     data = tmp_path / "set"
     (data / "train").mkdir(parents=True)
     (data / "val").mkdir()
@@ -128,6 +128,13 @@ def test_the_validation_loss_does_not_depend_on_the_training_batch(tiny_set, tmp
     )
     assert last["val_loss"] == pytest.approx(together, rel=1e-5)
     assert abs(one_by_one - together) > 0.01 * together  # the batching does move it on this set
+    # a short last batch weighs by its scenes: eight copies of a, then b alone, is (8 a + b) / 9 (a mean of
+    # the two batches' means would be (a + b) / 2)
+    a, b = (torch.utils.data.Subset(val_set, [i]) for i in (0, 1))
+    loss_a, loss_b = (evaluate(model, torch.utils.data.DataLoader(s, 1), torch.device("cpu"))["loss"] for s in (a, b))
+    nine = torch.utils.data.ConcatDataset([a] * VALIDATION_BATCH + [b])
+    loss = evaluate(model, torch.utils.data.DataLoader(nine, VALIDATION_BATCH), torch.device("cpu"))["loss"]
+    assert loss == pytest.approx((VALIDATION_BATCH * loss_a + loss_b) / (VALIDATION_BATCH + 1), rel=1e-4)
 
 
 def test_no_two_sets_share_a_scene_but_the_pattern_comparison():
