@@ -168,6 +168,22 @@ def test_the_codes_of_a_surface_outside_the_working_range_name_its_own_order_the
         assert right >= share if share else right == 0, z
 
 
+def test_only_codes_read_well_fit_an_order_outside_the_working_range_closely(rig, patterns, calibration):
+    """Why an order outside the range must fit within OUTSIDE_FIT of the margin: codes read with the
+    error a network leaves on a surface (0.04 rad) of planes before and beyond the range, among the pixels
+    whose codes name no order of it, fit one outside at 99-100% (measured); codes too noisy to name an
+    order of a plane inside the range (0.3 rad) fit one at 55% (97% within the whole margin), so the
+    noise at a frame's edge makes less false evidence of a surface outside the range."""
+    decoder, rng = CompositeDecoder(calibration), np.random.default_rng(0)
+    for z, sigma, most, least in ((600.0, 0.04, 1.0, 0.97), (1800.0, 0.04, 1.0, 0.97), (1150.0, 0.3, 0.65, 0.0)):
+        carrier, codes = exact_phases(SceneRenderer(rig, plane_scene(rig, z, tilt_x_deg=10.0)), patterns)
+        wrapped = np.mod(carrier, 2 * np.pi).astype(np.float32)
+        read = [np.float32(c + rng.normal(0, sigma, c.shape)) for c in codes]
+        unsure = np.flatnonzero(np.isnan(decoder.code_phase(wrapped, read)))[::7]
+        found = np.isfinite(decoder.outside_phase(wrapped, read, unsure)).mean()
+        assert unsure.size > 1000 and least <= found <= most, (z, found)
+
+
 def test_a_surface_where_the_codes_repeat_is_refused_by_the_codes_around_it(rig, patterns, calibration):
     """Planes far enough before or beyond the working range for the coarse code to turn (800, 1500
     and 1800 mm): with exact phases they name wrong orders inside the range on bands of pixels, each
