@@ -9,7 +9,9 @@ other); DepthModel (what the node runs on a frame: scale, pad, run the network, 
 pixels) with --threads; the node in its own process with its own defaults (the network on one core,
 decoding earlier frames on the other), fed by this script first as fast as it takes frames (it keeps
 only the newest: its most frames/s), then as a 30 frames/s camera (does it keep up?), timed from each
-frame's stamp to its depth image arriving here; with the node process's CPU time (user and system) and page
+frame's stamp to its depth image arriving here, and where that time went by the node's own /diagnostics
+(its network, its decoding and publishing, and from its image callback to the depth published; the
+rest is the frame's way in and the depth image's way here); with the node process's CPU time (user and system) and page
 faults per frame back, and its resident memory at the end, from /proc (Linux), and this script's own CPU time
 per frame back (its publisher and subscriber share the two cores with the node).
 """
@@ -23,6 +25,7 @@ import time
 import cv2
 import numpy as np
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 from std_msgs.msg import Header
@@ -119,6 +122,14 @@ def main():
         Image, Topics.DEPTH, lambda m: arrivals.append((time.time_ns() - stamp_ns(m.header.stamp)) / 1e6), Qos.LARGE
     )
     pub = robot.create_publisher(Image, Topics.CAMERA_IMAGE, Qos.FRAMES)
+    health = {}  # the node's newest /diagnostics values: its last 200 frames' stage times
+
+    def on_health(msg):
+        for status in msg.status:
+            if status.name == "/cnn_depth":
+                health.update({kv.key: kv.value for kv in status.values})
+
+    robot.create_subscription(DiagnosticArray, "/diagnostics", on_health, 10)
     try:
         while pub.get_subscription_count() == 0 or robot.count_subscribers(Topics.CAMERA_IMAGE) == 0:
             rclpy.spin_once(robot, timeout_sec=0.1)
@@ -129,6 +140,7 @@ def main():
             sent_back = feed(robot, pub, image, args.seconds, rate, arrivals)
             own = sum(os.times()[:2]) - sum(own[:2])
             runs[rate] = (*sent_back, process_times(node_proc.pid) - before, own)
+        stages = {k: float(health.get(f"{k} p50 (ms)", "nan")) for k in ("network", "decode and publish", "latency")}
         resident = resident_mb(node_proc.pid)
     finally:
         stop_process(node_proc, timeout=15)
@@ -170,6 +182,12 @@ def main():
             f" {1000 * own / frames:26.1f}"
         )
     print(f"node process resident memory at the end: {resident:.0f} MB")
+    network, decoding, inside = stages.values()
+    print(
+        f"\nat {CAMERA_RATE} frames/s, p50 of the node's last 200 frames (its /diagnostics): network {network:.1f} ms, "
+        f"decode and publish {decoding:.1f} ms, image in to depth published {inside:.1f} ms; stamp to depth "
+        f"here {np.median(runs[CAMERA_RATE][2][-200:]):.1f} ms (the same frames)"
+    )
     print(
         "\nnode: stamp to depth image here; it keeps the newest frame, so frames not back were dropped, not "
         f"queued. Node latency at {CAMERA_RATE} frames/s / bare session: "

@@ -8,8 +8,9 @@ the newest frame (KEEP_LAST 1): under load older frames are dropped, never queue
 that may wait for the decoding (below). Publishes
 depth/image (32FC1, metres, NaN where the image shows no usable fringes: shadows, dark or saturated
 areas), depth/camera_info and points (organized PointCloud2, metres), with the image's header, and
-its health on /diagnostics (for the composite model also the share of the pixels with fringes whose
-codes name no order of the calibration's working range, a warning when 30% do or when the decoder
+its health on /diagnostics (the latency from image in to outputs published, and its two stages, network
+and decode and publish, p50 and p95; for the composite model also the share of the pixels with fringes
+whose codes name no order of the calibration's working range, a warning when 30% do or when the decoder
 refuses 1% for codes that repeat beyond it: DepthModel.warnings). A phase-aware model
 also gives confidence/image (32FC1, 0-1: for the composite model the share of the pixels around it,
 and of its whole surface, whose codes give the order chosen there, the lesser of the two; for the
@@ -133,6 +134,7 @@ class CnnDepth(Node):
         try:
             image = self.model.frame(image_to_numpy(msg))
             raw = self.model.network(image)
+            self.health.latency(time.perf_counter() - start, "network")
         except (ImageError, ModelError, CalibrationError) as e:
             self.health.report("frames rejected", f"image rejected: {e}")
             return
@@ -154,6 +156,7 @@ class CnnDepth(Node):
                 self.decoding.task_done()
 
     def _publish(self, header, image, raw, out, sidebands, want, start):
+        decoding = time.perf_counter()
         out = self.model.laid_out(raw) if out is None else out
         depth_mm, confidence = self.model.decode(image, out, sidebands)
         if want["depth"]:
@@ -167,7 +170,9 @@ class CnnDepth(Node):
         self.info.header = header
         self.info_pub.publish(self.info)
         self.health.count("depth out")
-        self.health.latency(time.perf_counter() - start)
+        published = time.perf_counter()
+        self.health.latency(published - start)
+        self.health.latency(published - decoding, "decode and publish")
         # usable: pixels that show fringes (a phase-aware model's confidence is NaN elsewhere); a pixel
         # with fringes whose order is unsure is no fault of the input
         usable = depth_mm if confidence is None else confidence

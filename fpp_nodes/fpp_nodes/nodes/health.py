@@ -1,10 +1,10 @@
 """Node health on /diagnostics (diagnostic_msgs/DiagnosticArray), the way ROS drivers report it.
 
 Once a second each node publishes one DiagnosticStatus named after the node: totals and rates of what
-came in and went out, what was dropped or rejected and why, latency percentiles, and what it runs with
-(calibration, model). Level OK; WARN when something was dropped or rejected since the last report (the
-message says what: the newest three kinds of problem); counters are totals since start, rates are over
-the last report.
+came in and went out, what was dropped or rejected and why, latency percentiles (and those of its stages,
+where a node times them: cnn_depth's network, decode and publish), and what it runs with (calibration, model).
+Level OK; WARN when something was dropped or rejected since the last report (the message says what: the
+newest three kinds of problem); counters are totals since start, rates are over the last report.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ class Health:
         self.node = node
         self.totals: Counter = Counter()
         self.window: Counter = Counter()
-        self.latencies_s: deque = deque(maxlen=200)
+        self.times_s: dict[str, deque] = {}  # "latency", or a stage's name -> its last 200 times
         self.facts: dict[str, str] = {}  # what the node runs with: calibration, model
         self.problems: dict[str, str] = {}  # since the previous report: wording (numbers aside) -> latest message
         self.logged: dict[str, float] = {}  # a problem's wording (numbers aside) -> when it was last logged
@@ -42,9 +42,10 @@ class Health:
             self.totals[key] += n
             self.window[key] += n
 
-    def latency(self, seconds: float) -> None:
+    def latency(self, seconds: float, stage: str = "latency") -> None:
+        """One output's latency, or the time one of its stages took (reported as "<stage> p50 (ms)")."""
         with self.lock:
-            self.latencies_s.append(seconds)
+            self.times_s.setdefault(stage, deque(maxlen=200)).append(seconds)
 
     def fact(self, key: str, value: str) -> None:
         with self.lock:
@@ -74,9 +75,9 @@ class Health:
         elapsed = max(now - self.since, 1e-9)
         values = {key: str(n) for key, n in sorted(self.totals.items())}
         values.update({f"{key} rate (Hz)": f"{self.window[key] / elapsed:.2f}" for key in sorted(self.totals)})
-        if self.latencies_s:
-            p50, p95 = np.percentile(self.latencies_s, [50, 95]) * 1000
-            values.update({"latency p50 (ms)": f"{p50:.1f}", "latency p95 (ms)": f"{p95:.1f}"})
+        for stage, times in self.times_s.items():
+            p50, p95 = np.percentile(times, [50, 95]) * 1000
+            values.update({f"{stage} p50 (ms)": f"{p50:.1f}", f"{stage} p95 (ms)": f"{p95:.1f}"})
         values.update(self.facts)
         problems = list(self.problems.values())[-3:]
         level, message = (DiagnosticStatus.WARN, "; ".join(problems)) if problems else (DiagnosticStatus.OK, "ok")
