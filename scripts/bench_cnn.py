@@ -35,6 +35,7 @@ from fpp_nodes.core.model import DepthModel, default_model_path
 from fpp_nodes.core.scenes import make_scene
 from fpp_nodes.core.simulation import Rig, render
 from fpp_nodes.nodes.cnn_depth import NETWORK_THREADS
+from fpp_nodes.nodes.health import TOPIC as DIAGNOSTICS
 from fpp_nodes.processes import start_process, stop_process
 
 from machine import describe
@@ -129,7 +130,7 @@ def main():
             if status.name == "/cnn_depth":
                 health.update({kv.key: kv.value for kv in status.values})
 
-    robot.create_subscription(DiagnosticArray, "/diagnostics", on_health, 10)
+    robot.create_subscription(DiagnosticArray, DIAGNOSTICS, on_health, 10)
     try:
         while pub.get_subscription_count() == 0 or robot.count_subscribers(Topics.CAMERA_IMAGE) == 0:
             rclpy.spin_once(robot, timeout_sec=0.1)
@@ -140,7 +141,9 @@ def main():
             sent_back = feed(robot, pub, image, args.seconds, rate, arrivals)
             own = sum(os.times()[:2]) - sum(own[:2])
             runs[rate] = (*sent_back, process_times(node_proc.pid) - before, own)
-        stages = {k: float(health.get(f"{k} p50 (ms)", "nan")) for k in ("network", "decode and publish", "latency")}
+        network, decoding, inside = (
+            float(health.get(f"{k} p50 (ms)", "nan")) for k in ("network", "decode and publish", "latency")
+        )
         resident = resident_mb(node_proc.pid)
     finally:
         stop_process(node_proc, timeout=15)
@@ -182,7 +185,6 @@ def main():
             f" {1000 * own / frames:26.1f}"
         )
     print(f"node process resident memory at the end: {resident:.0f} MB")
-    network, decoding, inside = stages.values()
     print(
         f"\nat {CAMERA_RATE} frames/s, p50 of the node's last 200 frames (its /diagnostics): network {network:.1f} ms, "
         f"decode and publish {decoding:.1f} ms, image in to depth published {inside:.1f} ms; stamp to depth "

@@ -12,6 +12,8 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 
+from fpp_nodes.nodes.health import TOPIC as DIAGNOSTICS
+
 LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 
 
@@ -38,7 +40,7 @@ def main():
                 print(show(status), flush=True)
             seen[status.name] = status
 
-    node.create_subscription(DiagnosticArray, "/diagnostics", on_report, 50)
+    node.create_subscription(DiagnosticArray, DIAGNOSTICS, on_report, 50)
     end = time.monotonic() + args.wait
     try:
         while not args.once or time.monotonic() < end:

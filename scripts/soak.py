@@ -54,6 +54,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image, PointCloud2
 
 from fpp_msgs_py import Frames, Qos, Topics
+from fpp_nodes.nodes.health import TOPIC as DIAGNOSTICS
 from fpp_nodes.processes import NodeProcesses
 
 from machine import describe
@@ -101,7 +102,7 @@ class SoakRobot(Node):
             self.create_subscription(
                 msg_type, topic, lambda d, n=name: self.outputs[n].append(self._check(n, d)), deep, raw=True
             )
-        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+        self.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 10)
 
     def _check(self, name: str, data: bytes) -> tuple[int, int]:
         arrived = time.time_ns()

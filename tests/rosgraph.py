@@ -18,6 +18,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from fpp_nodes.nodes.health import TOPIC as DIAGNOSTICS
 from fpp_nodes.processes import NodeProcesses
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,7 +70,7 @@ class Diagnostics:
 
     def __init__(self, robot):
         self.latest, self.said = {}, {}
-        robot.node.create_subscription(DiagnosticArray, "/diagnostics", self._on, 50)
+        robot.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on, 50)
 
     def _on(self, msg):
         for status in msg.status:
