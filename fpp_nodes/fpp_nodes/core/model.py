@@ -16,7 +16,7 @@ import yaml
 
 from . import fused
 from .calibration import Calibration
-from .patterns import CARRIER_AMPLITUDE, COMPOSITE_CODES, PatternError, PatternSet
+from .patterns import CARRIER_AMPLITUDE, COMPOSITE_CODES, PatternError, PatternSet, composite_radiance
 from .phase import PhaseError
 from .reconstruct import (
     CompositeDecoder,
@@ -252,6 +252,14 @@ class DepthModel:
         image = self.frame(image)
         return self.decode(image, self.outputs(image))
 
+    def warm_up(self) -> None:
+        """Decode one frame of a made-up scene (warm_up_frame) so that onnxruntime's first run, and the
+        first call of every compiled pass of the decoding (numba compiles each then, about 6 s on a fresh
+        install, or loads its cached copy), come now: a black frame reaches only some of them, and the
+        first camera frames came seconds late."""
+        rig = self.calibration or self.card_calibration
+        self.infer(np.zeros(self.size[::-1], np.uint8) if rig is None else warm_up_frame(rig))
+
     def decode(
         self, image: np.ndarray, out: np.ndarray, sidebands: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -269,6 +277,27 @@ class DepthModel:
             return depth, confidence
         depth = cv2.resize(out[0], self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else out[0]
         return trusted_single_shot(depth, image), None
+
+
+def warm_up_frame(calibration: Calibration) -> np.ndarray:
+    """The single-shot frame the calibration's camera would take, by its models, of a plane in the
+    middle of the working range with a block before it and one beyond the range's far end: steps, an
+    order outside the range and a shadowless plane, which every decoding path meets."""
+    cam = calibration.camera
+    near, far = calibration.working_range_mm or (calibration.reference_depth_mm,) * 2
+    span = max(far - near, 0.1 * calibration.reference_depth_mm)
+    depth = np.full(cam.shape, (near + far) / 2)
+    h, w = cam.shape
+    depth[h // 4 : h // 2, w // 4 : w // 2] = near + 0.2 * span
+    depth[h // 4 : h // 2, w // 2 : 3 * w // 4] = far + 0.3 * span
+    u, v = cam.ideal_pixels()
+    carrier = calibration.model.phase_at_depth(depth, u, v)
+    if calibration.patterns.single_shot == "composite":
+        radiance = composite_radiance(carrier, calibration.code_phases_at_depth(depth, carrier, u, v))
+    else:  # the paper's: the finest fringes' first image
+        radiance = 0.5 + 0.5 * np.cos(carrier)
+    top = (1 << cam.bits) - 1 if cam.bits else np.iinfo(cam.frame_dtype).max
+    return np.round(top * (0.1 + 0.8 * radiance)).astype(cam.frame_dtype)
 
 
 def confident(confidence: np.ndarray, min_confidence: float) -> np.ndarray:

@@ -184,13 +184,19 @@ def composite_phases(p: PatternSet, xp, yp) -> list[np.ndarray]:
     return [2.0 * np.pi * (fx * x + fy * y) for fx, fy in [(p.frequencies[-1], 0.0), *p.code_frequencies]]
 
 
-def composite_pattern(p: PatternSet) -> np.ndarray:
-    """The composite single-shot pattern (module docstring), height x width, quantized like the others."""
-    carrier, *codes = composite_phases(p, np.arange(p.width)[None, :], np.arange(p.height)[:, None])
+def composite_radiance(carrier, codes) -> np.ndarray:
+    """The composite's light (0 to 1, as the projector shows it after its gamma) where its carrier and
+    code gratings have these phases (composite_phases)."""
     radiance = 0.5 + 0.5 * CARRIER_AMPLITUDE * np.cos(carrier)
     for code in codes:
         radiance = radiance + 0.5 * CODE_AMPLITUDE * np.cos(code)
-    return np.round(p.max_value * radiance ** (1.0 / p.gamma)).astype(pattern_dtype(p))
+    return radiance
+
+
+def composite_pattern(p: PatternSet) -> np.ndarray:
+    """The composite single-shot pattern (module docstring), height x width, quantized like the others."""
+    carrier, *codes = composite_phases(p, np.arange(p.width)[None, :], np.arange(p.height)[:, None])
+    return np.round(p.max_value * composite_radiance(carrier, codes) ** (1.0 / p.gamma)).astype(pattern_dtype(p))
 
 
 def pattern_images(p: PatternSet) -> list[np.ndarray]:

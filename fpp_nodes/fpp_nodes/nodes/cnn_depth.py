@@ -91,9 +91,7 @@ class CnnDepth(Node):
         self.decoding = queue.Queue(maxsize=1)
         self._use(calibration, source)
         follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
-        cam = self.calibration.camera
-        # the decoder's compiled pass (or numba's cached copy) and onnxruntime's first run now, not on a frame
-        self.model.infer(np.zeros((cam.height, cam.width), cam.frame_dtype))
+        self.model.warm_up()
         self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
         self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
         self.points_pub = self.create_publisher(PointCloud2, Topics.POINTS, Qos.LARGE)

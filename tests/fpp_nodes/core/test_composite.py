@@ -515,3 +515,59 @@ def test_a_pixel_whose_codes_name_no_order_takes_its_neighbourhoods_and_makes_no
     assert np.nanmax(np.abs(depth - 1150.0)) < 0.05 and np.isfinite(depth[~wrong]).mean() > 0.99
     depth, _ = CompositeDecoder(calibration, min_surface_px=1500)(out, 0.5)
     assert np.mean(np.abs(depth[wrong] - 1150.0) > 5) > 0.5
+
+
+WARM_UP_CHECK = """
+import json, numba, numpy as np
+from fpp_nodes.core import fused
+from fpp_nodes.core.calibration import Calibration, default_calibration_path
+from fpp_nodes.core.model import DepthModel, default_model_path
+from fpp_nodes.core.scenes import make_scene
+from fpp_nodes.core.simulation import Rig, render
+
+def compiled():
+    return {k: len(f.signatures) for k, f in vars(fused).items() if isinstance(f, numba.core.registry.CPUDispatcher)}
+
+model = DepthModel(default_model_path(), threads=1, calibration=Calibration.load(default_calibration_path()))
+model.warm_up()
+before = compiled()
+rig = Rig()
+for family, seed in (("objects", 3), ("sculpture", 1), ("blocks", 2)):
+    model.infer(render(rig, make_scene(rig, family, seed), rig.pattern_set(), np.random.default_rng(seed)).images[-1])
+print(json.dumps([before, compiled()]))
+"""
+
+
+def test_the_warm_up_reaches_every_compiled_pass_that_camera_frames_do():
+    """cnn_depth decodes warm_up_frame at start so that numba compiles (or loads) each pass then: in a
+    fresh process, frames of three scene families after it add no compiled pass (a black frame left
+    four to the first camera frame, which came 2 s late on a fresh install)."""
+    import json
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", WARM_UP_CHECK], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    before, after = json.loads(r.stdout.splitlines()[-1])
+    assert after == before
+    assert sum(before.values()) >= 10  # the decoding's passes, not an empty list
+
+
+def test_the_warm_up_frame_decodes_to_its_made_up_scene():
+    """The frame is one the shipped network and decoder read: the plane in the middle of the working
+    range given at 90% of its pixels, all of them at its order (within 0.5 mm; one order is about 13
+    mm) and their median within 0.05 mm, and the block beyond the range NaN."""
+    from fpp_nodes.core.calibration import default_calibration_path
+    from fpp_nodes.core.model import DepthModel, default_model_path, warm_up_frame
+
+    rig_calibration = Calibration.load(default_calibration_path())
+    depth, _ = DepthModel(default_model_path(), threads=1, calibration=rig_calibration).infer(
+        warm_up_frame(rig_calibration)
+    )
+    h, w = depth.shape
+    near, far = rig_calibration.working_range_mm
+    plane = depth[h // 2 + 20 : h - 20, 20 : w - 20]
+    assert np.isfinite(plane).mean() > 0.9
+    error = np.abs(plane - (near + far) / 2)
+    assert np.nanmax(error) < 0.5 and np.nanmedian(error) < 0.05
+    assert np.isnan(depth[h // 4 + 20 : h // 2 - 20, w // 2 + 20 : 3 * w // 4 - 20]).all()
