@@ -9,15 +9,36 @@ medians stay OpenCV's).
 The passes hold no Python objects and release the interpreter lock (nogil), so row bands run on
 threads of their own (reconstruct.PspReconstructor): no threading layer of numba's, nothing that a
 fork (training.dataset's workers) or a second calling thread could upset. Compiled once per image
-dtype and cached next to this file (or in ~/.cache/numba where that is read-only).
+dtype and cached next to this file (or in NUMBA_CACHE_DIR, or ~/.cache/numba, where that is read-only).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 
 import numba
 import numpy as np
+
+
+def _cache_found() -> bool:
+    """Whether numba finds a writable place to cache this module's passes. A read-only install run by a
+    user with no writable home (a container's or a service's user) has none, and numba would then refuse
+    to compile them at all: they are compiled at each start instead, with a warning."""
+    try:
+        numba.njit(cache=True)(_cache_found)
+        return True
+    except RuntimeError:  # numba's "cannot cache function ...: no locator available for file ..."
+        warnings.warn(
+            f"numba finds no writable place to cache the compiled passes of {__file__} (beside it, "
+            "NUMBA_CACHE_DIR or the user's cache directory): they are compiled again at each start "
+            "(seconds); set NUMBA_CACHE_DIR to a writable directory to keep them",
+            stacklevel=2,
+        )
+        return False
+
+
+_CACHE = _cache_found()
 
 _HALF_PI, _PI, _TWO_PI = np.float32(math.pi / 2), np.float32(math.pi), np.float32(2 * math.pi)
 _INV_TWO_PI = np.float32(1 / (2 * math.pi))
@@ -44,7 +65,7 @@ def _angle(y, x):
 
 # Per-pixel updates are written as sums and unconditional stores: a conditional store (a running
 # maximum) kept the compiler from vectorizing the loop, 3x slower.
-@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def sequence_phase(
     images, first, last, sin_weights, cos_weights, ratios, residual_bases, residual_weights, max_cycles, full_scale
 ):
@@ -111,7 +132,7 @@ def sequence_phase(
     return phase, modulation, trusted, power, coarser
 
 
-@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def trusted_points(
     phase, phase_noise, coarser, trusted, lo, first, last, terms, slope, rays_x, rays_y, blur, limits, out
 ):
@@ -219,7 +240,7 @@ def _neighbour_rule(up, row, down, max_step, out):
     )
 
 
-@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def code_phase(carrier, codes, intercepts, rates, spacings, lowest, low, high, max_miss):
     """reconstruct.CompositeDecoder.code_phase, row by row: codes, intercepts, rates and spacings are
     (K, H, W), coarse code first; lowest, low and high the decoder's maps; max_miss (rad) the most a
@@ -269,7 +290,7 @@ def code_phase(carrier, codes, intercepts, rates, spacings, lowest, low, high, m
     return own
 
 
-@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def outside_phase(where, carrier, codes, intercepts, rates, spacings, lowest, turn, low, high, turns, max_miss):
     """reconstruct.CompositeDecoder.outside_phase at the flat indices where of the maps: carrier, lowest,
     turn (the coarse code's turn in carrier phase), low and high flat (H W,); codes, intercepts, rates
@@ -335,7 +356,7 @@ def _wrapped_square(miss):
     return miss * miss
 
 
-@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def demodulated_blocks(image, phasors, factor):
     """Block sums (factor x factor pixels) of an image (float32) demodulated, for
     reconstruct.code_sidebands. phasors (2 P, H, W): P phasors' sines and cosines (any amplitude), the
@@ -399,7 +420,7 @@ def demodulated_blocks(image, phasors, factor):
     return sums
 
 
-@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def sideband_ratio(sums, area):
     """reconstruct.code_sidebands' ratio from demodulated_blocks' sums, windowed, as (rows, cols,
     planes x 2): per block, the larger over the codes of (|plus - carrier u| + |minus - carrier
@@ -429,7 +450,7 @@ def _length(x, y):
     return np.sqrt(x * x + y * y)
 
 
-@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def nearest_order(carrier, steps, base, step):
     """carrier + 2 pi k nearest the phase that median_16's steps stand for (base + steps x step), per
     pixel: the order a neighbourhood's median phase names."""
@@ -447,7 +468,7 @@ def nearest_order(carrier, steps, base, step):
 BLOCK = 2
 
 
-@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def block_phasors(out, fringes):
     """reconstruct.CompositeDecoder's blocks: per block of BLOCK x BLOCK pixels (a last, partial one where
     H or W is odd), the sums of out's planes (P, H, W) over its pixels that show fringes, and whether any
@@ -475,7 +496,7 @@ def block_phasors(out, fringes):
     return sums, shown
 
 
-@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def block_depth(out, absolute, confidence, fringes, code_planes, intercepts, rates, max_miss, ca, cb, da, db):
     """reconstruct.CompositeDecoder's last step, per pixel: its carrier phase (the angle of out's first
     two planes) at the order nearest its block's absolute phase (NaN where the block has none), through
@@ -511,7 +532,7 @@ def block_depth(out, absolute, confidence, fringes, code_planes, intercepts, rat
     return depth, sure, taken, unfit
 
 
-@numba.njit(nogil=True, error_model="numpy", cache=True)
+@numba.njit(nogil=True, error_model="numpy", cache=_CACHE)
 def label_counts(labels, count, marked):
     """The pixels marked (a mask) of each label 0 .. count - 1 (cv2.connectedComponents' labels)."""
     counts = np.zeros(count, np.int64)
@@ -522,7 +543,7 @@ def label_counts(labels, count, marked):
     return counts
 
 
-@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def window_mean_residuals(depth, sums, counts):
     """model.local_depth's middle: each pixel's window mean (its window's depth sum over its count of
     known pixels, at least 1) and the square of its depth's difference from it (0 where unknown)."""
@@ -538,7 +559,7 @@ def window_mean_residuals(depth, sums, counts):
     return mean, squares
 
 
-@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def window_roughness(depth, mean, square_sums, counts):
     """model.local_depth's end: the RMS of the window's squared differences (square_sums over its count
     of known pixels), and NaN in it and in mean (in place) where depth is unknown."""
@@ -553,7 +574,7 @@ def window_roughness(depth, mean, square_sums, counts):
     return roughness
 
 
-@numba.njit(nogil=True, cache=True)
+@numba.njit(nogil=True, cache=_CACHE)
 def pixel_shuffle(x, r):
     """torch's PixelShuffle: (C r^2, H, W) -> (C, H r, W r), out[c, h r + i, w r + j] = x[c r^2 + i r + j, h, w]
     (a third of the time of cv2.merge's interleaving)."""
@@ -576,7 +597,7 @@ def _steady(z, a, b, c, d, step):
     return np.isfinite(z) & ~_jump(z, a, b, c, d, step)
 
 
-@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=True)
+@numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
 def steady_pixels(depth, max_step):
     """reconstruct.drop_flying_pixels: the finite pixels no finite 4-neighbour of which is more than
     max_step away (float32 comparisons; a NaN neighbour is no step, inf: no rule). A missing
