@@ -9,7 +9,7 @@ medians stay OpenCV's).
 The passes hold no Python objects and release the interpreter lock (nogil), so row bands run on
 threads of their own (reconstruct.PspReconstructor): no threading layer of numba's, nothing that a
 fork (training.dataset's workers) or a second calling thread could upset. Compiled once per image
-dtype and cached next to this file (or in NUMBA_CACHE_DIR, or ~/.cache/numba, where that is read-only).
+dtype and cached in NUMBA_CACHE_DIR where it is set, else next to this file, else in ~/.cache/numba.
 """
 
 from __future__ import annotations
