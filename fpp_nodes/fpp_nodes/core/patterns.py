@@ -11,7 +11,8 @@ no fringe order) or this sensor's composite, shown as one more frame after the p
     I(x, y) = I_0 [1 + a cos(phi) + b sum_i cos(psi_i)],   psi_i = 2 pi (f_max x / (K_i W) + y / P_i)
 
 the highest-frequency carrier plus code gratings, each of whose phase grows by 2 pi / K_i per carrier
-fringe across the projector and which are nearly horizontal (rows of P_i projector pixels), so their
+fringe across the projector and which are nearly horizontal (rows of P_i projector pixels, in proportion
+to the carrier's period: the same picture at any projector resolution), so their
 spectral lobes sit far from the carrier's and from the albedo's. A camera pixel sees the projector row y
 at almost the same place at every depth (the baseline is horizontal), so once y is known from the
 calibration, psi_i tells the carrier's fringe order modulo K_i. The coarse code (K = 36 orders, more
@@ -26,13 +27,19 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 SINGLE_SHOT_KINDS = ("composite", "paper")
-# The composite's codes, (orders K each tells apart, row period P in projector pixels), fine to coarse,
+# The composite's codes, (orders K each tells apart, row period P in projector pixels at the carrier
+# period of REFERENCE_CARRIER_PERIOD_PX; scaled with the carrier's period elsewhere), fine to coarse,
 # and the gratings' amplitudes (a for the carrier, b for each code; a + 2 b = 1 spans 0 .. 2 I_0). Chosen
 # with python -m training.compare_codes on validation scenes (docs/single-shot.md): one code telling 36
 # orders apart left a margin of 0.07 rad and its own codes named the wrong order on 25% of the pixels;
 # these two leave 0.47 rad and 2.7%, for 13% more carrier phase noise; rows of 8.5/17 pixels drift too far
 # with depth (a camera pixel sees another projector row) and leave 0.21 rad.
 COMPOSITE_CODES = ((6, 12.0), (36, 24.0))
+# The default projector's carrier period (1280 px, 100 fringes). On a projector of another resolution, or
+# a set of another highest frequency, the codes' rows scale with the carrier's period, so the composite is
+# the same picture, and a network trained on one projector reads another's frames once they are resampled
+# to the fringe period it knows (model.DepthModel.use); rows fixed in pixels made the codes unreadable there.
+REFERENCE_CARRIER_PERIOD_PX = 1280 / 100
 CARRIER_AMPLITUDE, CODE_AMPLITUDE = 0.4, 0.3
 
 
@@ -106,8 +113,10 @@ class PatternSet:
 
     @property
     def code_frequencies(self) -> list[tuple[float, float]]:
-        """Each composite code grating's fringes across the width and down the height (f_max / K, H / P)."""
-        return [(self.frequencies[-1] / orders, self.height / period) for orders, period in COMPOSITE_CODES]
+        """Each composite code grating's fringes across the width and down the height (f_max / K, H / P,
+        P scaled with the carrier's period: REFERENCE_CARRIER_PERIOD_PX)."""
+        scale = self.width / self.frequencies[-1] / REFERENCE_CARRIER_PERIOD_PX
+        return [(self.frequencies[-1] / orders, self.height / (period * scale)) for orders, period in COMPOSITE_CODES]
 
     def shifts(self) -> np.ndarray:
         """delta_j = 2 pi j / N for j = 0 .. N-1."""

@@ -571,3 +571,20 @@ def test_the_warm_up_frame_decodes_to_its_made_up_scene():
     error = np.abs(plane - (near + far) / 2)
     assert np.nanmax(error) < 0.5 and np.nanmedian(error) < 0.05
     assert np.isnan(depth[h // 4 + 20 : h // 2 - 20, w // 2 + 20 : 3 * w // 4 - 20]).all()
+
+
+def test_the_shipped_network_measures_a_rig_with_a_full_hd_projector():
+    """A 1920 x 1080 projector over the default's field: the composite's code rows scale with its
+    carrier's period, so the shipped network (trained on 1280 x 800) reads them. With rows fixed in
+    projector pixels its codes named no order anywhere, and every pixel was NaN. Measured: 93.5% of the
+    lit pixels given, 0.01% off by more than 1 mm (the default rig: the same)."""
+    from fpp_nodes.core.model import DepthModel, default_model_path
+
+    rig = Rig(projector_width=1920, projector_height=1080)
+    calibration = simulated_calibration(rig, rig.pattern_set(), seed=7)[0]
+    capture = render(rig, make_scene(rig, "objects", 5), rig.pattern_set(), np.random.default_rng(5))
+    depth, _ = DepthModel(default_model_path(), threads=2, calibration=calibration).infer(capture.images[-1])
+    lit = capture.valid
+    given = np.isfinite(depth) & lit
+    assert given.sum() / lit.sum() > 0.88
+    assert np.mean(np.abs(depth[given] - capture.depth_mm[given]) > 1.0) < 0.002

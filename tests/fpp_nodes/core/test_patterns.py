@@ -79,3 +79,13 @@ def test_a_set_written_before_the_composite_is_the_papers():
         PatternSet(single_shot="gray")
     with pytest.raises(PatternError, match="vertical"):
         PatternSet(orientation="horizontal")
+
+
+def test_the_composite_is_the_same_picture_at_any_projector_resolution():
+    """The codes' rows scale with the carrier's period (REFERENCE_CARRIER_PERIOD_PX): at twice the
+    default's resolution the composite is the default's at twice the size, and on a 1920 x 1080
+    projector its rows are 1.5 times the default's pixels, as its carrier's period is."""
+    default, double, full_hd = PatternSet(), PatternSet(width=2560, height=1600), PatternSet(width=1920, height=1080)
+    assert double.code_frequencies == default.code_frequencies
+    for (fx, fy), (gx, gy) in zip(full_hd.code_frequencies, default.code_frequencies):
+        assert fx == gx and full_hd.height / fy == pytest.approx(1.5 * default.height / gy)
