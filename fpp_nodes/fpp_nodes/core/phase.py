@@ -291,14 +291,19 @@ def ftp_wrapped_phase(
 
 def code_lobe_centres(image: np.ndarray, count: int) -> list[tuple[float, float]]:
     """Where the composite's count code gratings sit in an image's spectrum (cycles per image width and
-    height): the count strongest lobes at least 4 cycles down the image (the carrier's lobe and the
-    albedo's sit near zero there), finest rows (most cycles down) first, as patterns.COMPOSITE_CODES."""
+    height): the count strongest lobes nearer the spectrum's vertical axis than its horizontal one (the
+    codes' fringes are nearly horizontal, the carrier's vertical), in its half down the image (each
+    lobe's mirror lies in the other), past the albedo's within 4 cycles of zero; finest rows (most
+    cycles down) first, as patterns.COMPOSITE_CODES. A camera rolled about its axis rolls every lobe:
+    the carrier's sits some cycles down then (6 at 5 degrees), and was taken for a code when codes were
+    the strongest lobes at least 4 cycles down; by direction they are told apart up to about 30 degrees
+    (the fine code's lobe lies 12 degrees off the vertical)."""
     img = np.asarray(image, np.float64)
     h, w = img.shape
     power = np.abs(np.fft.fft2(img - img.mean()))
     fx = (np.fft.fftfreq(w) * w)[None, :]
     fy = (np.fft.fftfreq(h) * h)[:, None]
-    power[np.broadcast_to(fy < 4.0, power.shape)] = 0
+    power[(np.hypot(fx, fy) < 4.0) | (np.abs(fy) <= np.abs(fx)) | (fy < 0)] = 0
     centres = []
     for _ in range(count):
         row, col = np.unravel_index(np.argmax(power), power.shape)

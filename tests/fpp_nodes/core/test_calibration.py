@@ -262,3 +262,38 @@ def test_a_plane_with_a_dark_spot_calibrates_the_codes_as_a_clean_one(rig, patte
     spotted = CompositeDecoder(calibrate_from_planes(stacks, depths, rig.camera(), patterns)[0])
     clean = CompositeDecoder(calibration)
     assert abs(spotted.min_separation - clean.min_separation) < 0.01 and spotted.row_fit_error < 0.01
+
+
+def test_a_camera_rolled_five_degrees_calibrates_from_planes_and_measures(rig, patterns):
+    """A camera mounted rolled about its axis (here every rendered image turned 5 degrees about the
+    centre, which also smooths it a little): the code gratings' spectral lobes are told from the
+    carrier's by direction, and each plane's row phase is continued into its unlit corners as a ramp,
+    so the planes calibrate (both refused it before: the carrier's lobe, 6 cycles down, taken for a
+    code; the fine code unwrapped 40% of a plane a turn off). The shipped network then gives a scene of
+    separate objects 88.1% of its lit pixels, 0.02% off by more than 1 mm (unrolled: 93.5%, 0.01%)."""
+    import cv2
+
+    from fpp_nodes.core.model import DepthModel, default_model_path
+    from fpp_nodes.core.scenes import make_scene
+    from fpp_nodes.core.workflow import CALIBRATION_DEPTHS_MM
+
+    def rolled(stack):
+        h, w = stack.shape[-2:]
+        turn = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), 5.0, 1.0)
+        return np.stack([cv2.warpAffine(image, turn, (w, h), flags=cv2.INTER_LINEAR) for image in stack])
+
+    rng = np.random.default_rng(7)
+    planes = [rolled(render(rig, plane_scene(rig, z), patterns, rng).images) for z in CALIBRATION_DEPTHS_MM]
+    calibration, _ = calibrate_from_planes(
+        planes, list(CALIBRATION_DEPTHS_MM), rig.camera(), patterns, working_range_mm=SURFACE_DEPTH_MM
+    )
+    capture = render(rig, make_scene(rig, "objects", 5), patterns, np.random.default_rng(5))
+    truth = rolled(np.where(capture.valid, capture.depth_mm, 0).astype(np.float32)[None])[0]
+    lit = rolled(capture.valid.astype(np.float32)[None])[0] > 0.999
+    depth, _ = DepthModel(default_model_path(), threads=2, calibration=calibration).infer(
+        rolled(capture.images[-1:])[0]
+    )
+    given = np.isfinite(depth) & lit
+    inner = cv2.erode(lit.view(np.uint8), np.ones((5, 5), np.uint8)).view(bool)  # the turned truth is exact there
+    assert given.sum() / lit.sum() > 0.8
+    assert np.mean(np.abs(depth - truth)[given & inner] > 1.0) < 0.005
