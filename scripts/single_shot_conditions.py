@@ -88,6 +88,11 @@ GEOMETRIES = {
     # the network reads the image resampled to its trained fringe period (DepthModel.use)
     "camera 1280x960, same field (fringes 2x wider)": dict(width=1280, height=960, focal_px=Rig.focal_px * 2),
     "camera 320x240, same field (fringes 2x finer)": dict(width=320, height=240, focal_px=Rig.focal_px / 2),
+    # the composite's code rows scale with its carrier's period (patterns.REFERENCE_CARRIER_PERIOD_PX)
+    "projector 1920x1080, the same field": dict(projector_width=1920, projector_height=1080),
+    "projector 2560x1600, 440 mm, camera 1280x960": dict(
+        width=1280, height=960, projector_width=2560, projector_height=1600, projector_field_mm=440.0
+    ),
 }
 # the families place surfaces by the simulated rig's depths; these two follow any rig's stand-off
 GEOMETRY_FAMILIES = ("sculpture", "objects")
@@ -213,12 +218,13 @@ def main(argv=None):
     print(f"{'geometry':46} {' | '.join([columns + '   ' + columns] * len(paths))}")
     for name, changes in GEOMETRIES.items():
         rig = replace(base, **changes)
+        rig_patterns = replace(patterns, width=rig.projector_width, height=rig.projector_height)
         planes = [rig.standoff_mm + dz for dz in (-60.0, -30.0, 0.0, 30.0, 60.0)]
-        calibration, _ = simulated_calibration(rig, patterns, 1, planes, working_range_mm=None)
+        calibration, _ = simulated_calibration(rig, rig_patterns, 1, planes, working_range_mm=None)
         decodings = [(DepthModel(path, calibration=calibration), model) for path, model in zip(paths, models)]
         # the card's calibration: its camera's size only
         readable = [d for pair in decodings for d in pair if d.size == (rig.width, rig.height)]
-        totals = dict(zip(map(id, readable), measure(readable, rig, patterns, geometry_scenes)))
+        totals = dict(zip(map(id, readable), measure(readable, rig, rig_patterns, geometry_scenes)))
         row(name, [[totals.get(id(d)) for d in pair] for pair in decodings])
     pair = f"{'the card':>26}   {'without max_outside':>26}"
     print(f"\n{'':46} {' | '.join([pair] * len(paths))}")
