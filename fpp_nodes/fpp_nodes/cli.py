@@ -65,7 +65,10 @@ def _write_capture(folder: Path, capture, rig: Rig, patterns: PatternSet, scene_
 
 def cmd_patterns(args) -> None:
     """What a projector's pattern memory or a display window shows: every frame of a sequence."""
-    patterns = Calibration.load(args.calibration).patterns if args.calibration else Rig().pattern_set()
+    if args.calibration:
+        patterns = Calibration.load(args.calibration).patterns
+    else:  # a projector not yet calibrated: its sensor description's set
+        patterns = _read_sensor(args.sensor)[1] if args.sensor else Rig().pattern_set()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     names = []
@@ -421,7 +424,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("patterns", help="every pattern of the set as a PNG at the projector's resolution")
-    p.add_argument("--calibration", help="whose pattern set (default: the simulated rig's)")
+    whose = p.add_mutually_exclusive_group()
+    whose.add_argument("--calibration", help="whose pattern set (default: the simulated rig's)")
+    whose.add_argument(
+        "--sensor",
+        help="a sensor description (camera and patterns, as fpp calibrate's --sensor): its pattern set, for a "
+        "projector not yet calibrated",
+    )
     p.add_argument("--out", required=True)
     p.set_defaults(func=cmd_patterns)
 

@@ -260,6 +260,13 @@ def test_patterns_writes_what_a_projector_shows(tmp_path):
     Calibration.load(default_calibration_path()).with_papers_single_shot().save(tmp_path / "paper.yaml")
     assert fpp("patterns", "--calibration", tmp_path / "paper.yaml", "--out", tmp_path / "q").returncode == 0
     assert len(list((tmp_path / "q").glob("pattern_*.png"))) == 16
+    # a projector not yet calibrated: its sensor description's set, at its resolution
+    sensor = {"camera": Calibration.load(default_calibration_path()).camera.to_dict()}
+    sensor["patterns"] = {**listing["patterns"], "width": 1920, "height": 1080}
+    (tmp_path / "sensor.yaml").write_text(yaml.safe_dump(sensor))
+    assert fpp("patterns", "--sensor", tmp_path / "sensor.yaml", "--out", tmp_path / "s").returncode == 0
+    image = cv2.imread(str(tmp_path / "s" / "pattern_16.png"), cv2.IMREAD_UNCHANGED)
+    assert image.shape == (1080, 1920)
 
 
 def test_board_calibration_from_pose_folders(tmp_path):
