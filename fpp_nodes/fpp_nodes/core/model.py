@@ -141,7 +141,7 @@ class DepthModel:
         changes if the calibration cannot be used."""
         if calibration is not None and calibration is self.calibration:
             return  # the decoder's maps take a while to build
-        size, scale = self.trained_size, 1.0
+        size, scale, mirror = self.trained_size, 1.0, ()
         if calibration is not None:
             if self.reads != calibration.patterns.single_shot:
                 raise ModelError(
@@ -154,6 +154,7 @@ class DepthModel:
                 size, scale = (cam.width, cam.height), self.card_calibration.fringe_period_px()
                 scale /= calibration.fringe_period_px()
                 scale = 1.0 if abs(scale - 1) <= PERIOD_TOLERANCE else scale
+                mirror = mirrored_axes(calibration)
             elif (cam.width, cam.height) != size:
                 raise ModelError(
                     f"the model was trained for {size[0]}x{size[1]} images, "
@@ -171,7 +172,7 @@ class DepthModel:
             except PhaseError as e:
                 whose = "its card's" if calibration is None or self.output == "fringe_order" else "the rig's"
                 raise ModelError(f"the model cannot decode with {whose} calibration: {e}") from None
-        self.calibration, self.size, self.scale = calibration, size, scale
+        self.calibration, self.size, self.scale, self.mirror = calibration, size, scale, mirror
         # what the network reads: the image at 1/downsample, or resampled to the trained fringe period
         self.input_size = tuple(round(n * scale) // self.downsample for n in size)
 
@@ -223,6 +224,8 @@ class DepthModel:
         cnn_depth runs it on its network's thread, and laid_out on the decoding thread."""
         self.check(image)
         x = network_input(image)
+        if self.mirror:  # as training showed the fringes (mirrored_axes)
+            x = np.ascontiguousarray(np.flip(x, self.mirror))
         w, h = self.input_size
         if (w, h) != self.size:
             x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA if w < self.size[0] else cv2.INTER_LINEAR)
@@ -236,6 +239,8 @@ class DepthModel:
         out = (fused.pixel_shuffle(raw, self.shuffle) if self.shuffle > 1 else raw)[:, :h, :w]
         if self.scale != 1.0:
             out = np.stack([cv2.resize(c, self.size, interpolation=cv2.INTER_LINEAR) for c in out])
+        if self.mirror:
+            out = np.ascontiguousarray(np.flip(out, [axis + 1 for axis in self.mirror]))
         return out
 
     def sidebands(self, image: np.ndarray, out: np.ndarray) -> np.ndarray | None:
@@ -277,6 +282,20 @@ class DepthModel:
             return depth, confidence
         depth = cv2.resize(out[0], self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else out[0]
         return trusted_single_shot(depth, image), None
+
+
+def mirrored_axes(calibration: Calibration) -> tuple[int, ...]:
+    """The image axes (0: up-down, 1: left-right) along which a composite rig shows its fringes mirrored
+    from how training showed them, by its calibration's models at the image centre, mid-range: the
+    carrier's phase rising to the right and the codes' rows running down. A projector showing its image
+    mirrored (rear or ceiling mode) turns them, and a network reads a mirrored carrier's phase backwards
+    (every pixel was NaN): the image is mirrored back before the network, its outputs after it."""
+    cam = calibration.camera
+    near, far = calibration.working_range_mm or (calibration.reference_depth_mm,) * 2
+    u, v = np.array([cam.cx, cam.cx + 1, cam.cx]), np.array([cam.cy, cam.cy, cam.cy + 1])
+    carrier = calibration.model.phase_at_depth((near + far) / 2, u, v)
+    rows = calibration.code_row_phase_at_depth(0, (near + far) / 2, u, v)
+    return tuple(axis for axis, falls in ((0, rows[2] < rows[0]), (1, carrier[1] < carrier[0])) if falls)
 
 
 def warm_up_frame(calibration: Calibration) -> np.ndarray:

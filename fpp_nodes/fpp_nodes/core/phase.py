@@ -289,27 +289,36 @@ def ftp_wrapped_phase(
     return np.mod(np.angle(analytic), TWO_PI), 2.0 * np.abs(analytic)
 
 
-def code_lobe_centres(image: np.ndarray, count: int) -> list[tuple[float, float]]:
+def code_lobe_centres(image: np.ndarray, count: int, rising=(1.0, 0.0)) -> list[tuple[float, float]]:
     """Where the composite's count code gratings sit in an image's spectrum (cycles per image width and
     height): the count strongest lobes nearer the spectrum's vertical axis than its horizontal one (the
-    codes' fringes are nearly horizontal, the carrier's vertical), in its half down the image (each
-    lobe's mirror lies in the other), past the albedo's within 4 cycles of zero; finest rows (most
-    cycles down) first, as patterns.COMPOSITE_CODES. A camera rolled about its axis rolls every lobe:
-    the carrier's sits some cycles down then (6 at 5 degrees), and was taken for a code when codes were
-    the strongest lobes at least 4 cycles down; by direction they are told apart up to about 30 degrees
-    (the fine code's lobe lies 12 degrees off the vertical)."""
+    codes' fringes are nearly horizontal, the carrier's vertical), past the albedo's within 4 cycles of
+    zero; finest rows (most cycles down) first, as patterns.COMPOSITE_CODES. A camera rolled about its
+    axis rolls every lobe: by direction they are told apart up to about 30 degrees (the fine code's lobe
+    lies 12 degrees off the vertical). Each lobe is one of a mirrored pair, whose phases are opposite:
+    the finest code's is the one whose phase rises along the carrier's (rising: the carrier phase's
+    gradient, per pixel along a row and down a column), the others' those whose rows run as its do, so a
+    projector showing its image mirrored (rear or ceiling mode) is read as it is."""
     img = np.asarray(image, np.float64)
     h, w = img.shape
     power = np.abs(np.fft.fft2(img - img.mean()))
     fx = (np.fft.fftfreq(w) * w)[None, :]
     fy = (np.fft.fftfreq(h) * h)[:, None]
-    power[(np.hypot(fx, fy) < 4.0) | (np.abs(fy) <= np.abs(fx)) | (fy < 0)] = 0
-    centres = []
+    power[(np.hypot(fx, fy) < 4.0) | (np.abs(fy) <= np.abs(fx))] = 0
+    lobes = []
     for _ in range(count):
         row, col = np.unravel_index(np.argmax(power), power.shape)
-        centres.append((float(fx[0, col]), float(fy[row, 0])))
-        power[np.hypot(fx - centres[-1][0], fy - centres[-1][1]) < 0.25 * np.hypot(*centres[-1])] = 0
-    return sorted(centres, key=lambda c: -c[1])
+        lobes.append((float(fx[0, col]), float(fy[row, 0])))
+        for sign in (1, -1):  # the lobe and its mirror
+            power[np.hypot(fx - sign * lobes[-1][0], fy - sign * lobes[-1][1]) < 0.25 * np.hypot(*lobes[-1])] = 0
+    lobes.sort(key=lambda c: -abs(c[1]))
+
+    def towards(lobe, direction):  # the lobe of the pair whose phase rises along direction (per pixel)
+        along = lobe[0] / w * direction[0] + lobe[1] / h * direction[1]
+        return lobe if along > 0 else (-lobe[0], -lobe[1])
+
+    finest = towards(lobes[0], rising)
+    return [finest] + [towards(lobe, (finest[0] / w, finest[1] / h)) for lobe in lobes[1:]]
 
 
 def ftp_code_phases(image: np.ndarray, centres: list[tuple[float, float]]) -> list[np.ndarray]:

@@ -141,7 +141,12 @@ def code_row_phases(composite: np.ndarray, phase: np.ndarray, valid: np.ndarray)
     # untrusted pixels set to the trusted ones' mean)
     composite = np.where(valid, composite, np.mean(composite, where=valid))
     rows = []
-    codes = ftp_code_phases(composite, code_lobe_centres(composite, len(COMPOSITE_CODES)))
+    # the carrier's phase gradient (along a row, down a column): which of each code's mirrored lobes to read
+    rising = (
+        np.median(np.diff(phase, axis=1)[valid[:, 1:] & valid[:, :-1]]),
+        np.median(np.diff(phase, axis=0)[valid[1:] & valid[:-1]]),
+    )
+    codes = ftp_code_phases(composite, code_lobe_centres(composite, len(COMPOSITE_CODES), rising))
     for (orders, _), code in zip(COMPOSITE_CODES, codes):
         wrapped = np.mod(code - phase / orders, TWO_PI)
         rows.append(np.where(inner, unwrap_spatial(np.where(inner, wrapped, continued(wrapped, inner))), np.nan))

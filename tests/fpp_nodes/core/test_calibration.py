@@ -297,3 +297,34 @@ def test_a_camera_rolled_five_degrees_calibrates_from_planes_and_measures(rig, p
     inner = cv2.erode(lit.view(np.uint8), np.ones((5, 5), np.uint8)).view(bool)  # the turned truth is exact there
     assert given.sum() / lit.sum() > 0.8
     assert np.mean(np.abs(depth - truth)[given & inner] > 1.0) < 0.005
+
+
+@pytest.mark.parametrize("mirrored", [(1,), (0, 1)], ids=["left-right (rear mode)", "both (ceiling mode)"])
+def test_a_projector_showing_its_image_mirrored_calibrates_and_measures(rig, patterns, mirrored):
+    """A projector in rear or ceiling mode (here every rendered image mirrored): the plane calibration
+    takes each code's lobe whose phase runs with the carrier's (ceiling mode was refused: FTP read each
+    code's mirror lobe), and the network is shown the fringes mirrored back as training showed them
+    (model.mirrored_axes; it read a mirrored carrier backwards, every pixel NaN and no warning). The
+    shipped network then measures the scene of separate objects as on the unmirrored rig: 93.5% of the
+    lit pixels, 0.01% off by more than 1 mm."""
+    from fpp_nodes.core.model import DepthModel, default_model_path, mirrored_axes
+    from fpp_nodes.core.scenes import make_scene
+    from fpp_nodes.core.workflow import CALIBRATION_DEPTHS_MM
+
+    rng = np.random.default_rng(7)
+    planes = [
+        np.flip(render(rig, plane_scene(rig, z), patterns, rng).images, [a + 1 for a in mirrored])
+        for z in CALIBRATION_DEPTHS_MM
+    ]
+    calibration, _ = calibrate_from_planes(
+        planes, list(CALIBRATION_DEPTHS_MM), rig.camera(), patterns, working_range_mm=SURFACE_DEPTH_MM
+    )
+    assert mirrored_axes(calibration) == mirrored
+    capture = render(rig, make_scene(rig, "objects", 5), patterns, np.random.default_rng(5))
+    truth = np.flip(np.where(capture.valid, capture.depth_mm, np.nan), mirrored)
+    depth, _ = DepthModel(default_model_path(), threads=2, calibration=calibration).infer(
+        np.ascontiguousarray(np.flip(capture.images[-1], mirrored))
+    )
+    given = np.isfinite(depth) & np.isfinite(truth)
+    assert given.sum() / np.isfinite(truth).sum() > 0.92
+    assert np.mean(np.abs(depth - truth)[given] > 1.0) < 0.002
