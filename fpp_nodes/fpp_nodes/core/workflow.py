@@ -160,8 +160,11 @@ def continued(wrapped: np.ndarray, inner: np.ndarray) -> np.ndarray:
     jumps where the nearest switched, across a rolled camera's wide unlit corners: at 5 degrees the
     fine code unwrapped 40% of a plane a turn or more off, and the calibration was refused.)"""
     v, u = np.mgrid[: wrapped.shape[0], : wrapped.shape[1]]
-    gx = np.median(wrap_phase(np.diff(wrapped, axis=1))[inner[:, 1:] & inner[:, :-1]])
-    gy = np.median(wrap_phase(np.diff(wrapped, axis=0))[inner[1:, :] & inner[:-1, :]])
+    steps = (
+        wrap_phase(np.diff(wrapped, axis=1))[inner[:, 1:] & inner[:, :-1]],
+        wrap_phase(np.diff(wrapped, axis=0))[inner[1:, :] & inner[:-1, :]],
+    )
+    gx, gy = (np.median(d) if d.size else 0.0 for d in steps)  # no two inner neighbours: a flat fill
     ramp = gx * u + gy * v
     offset = np.angle(np.mean(np.exp(1j * (wrapped - ramp)[inner])))
     return np.mod(ramp + offset, TWO_PI)
