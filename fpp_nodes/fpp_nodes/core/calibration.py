@@ -359,13 +359,17 @@ class Calibration:
             working_range_mm=self.working_range_mm,
         )
 
-    def fringe_period_px(self) -> float:
-        """The finest fringes' period in camera pixels at the image centre, in the middle of the working
-        range (without one: at the reference depth): what a network reading the fringes sees."""
+    def centre_gradient(self, phase_at) -> np.ndarray:
+        """(along a row, down a column) per pixel of phase_at(depth, u, v) at the image centre, in the
+        middle of the working range (without one: at the reference depth): the fringes a network sees."""
         near, far = self.working_range_mm or (self.reference_depth_mm,) * 2
         cx, cy = self.camera.cx, self.camera.cy
-        phase = self.model.phase_at_depth((near + far) / 2, np.array([cx, cx + 1, cx]), np.array([cy, cy, cy + 1]))
-        return float(2 * np.pi / np.hypot(phase[1] - phase[0], phase[2] - phase[0]))
+        phase = phase_at((near + far) / 2, np.array([cx, cx + 1, cx]), np.array([cy, cy, cy + 1]))
+        return phase[1:] - phase[0]
+
+    def fringe_period_px(self) -> float:
+        """The finest fringes' period in camera pixels (centre_gradient): what a network reading them sees."""
+        return float(2 * np.pi / np.hypot(*self.centre_gradient(self.model.phase_at_depth)))
 
     def code_row_phase_at_depth(self, code: int, depth, u, v):
         """Code grating number code's row phase a pixel sees at a depth (composite calibrations only)."""

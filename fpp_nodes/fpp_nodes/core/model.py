@@ -286,16 +286,13 @@ class DepthModel:
 
 def mirrored_axes(calibration: Calibration) -> tuple[int, ...]:
     """The image axes (0: up-down, 1: left-right) along which a composite rig shows its fringes mirrored
-    from how training showed them, by its calibration's models at the image centre, mid-range: the
+    from how training showed them, by its calibration's models (Calibration.centre_gradient): the
     carrier's phase rising to the right and the codes' rows running down. A projector showing its image
     mirrored (rear or ceiling mode) turns them, and a network reads a mirrored carrier's phase backwards
     (every pixel was NaN): the image is mirrored back before the network, its outputs after it."""
-    cam = calibration.camera
-    near, far = calibration.working_range_mm or (calibration.reference_depth_mm,) * 2
-    u, v = np.array([cam.cx, cam.cx + 1, cam.cx]), np.array([cam.cy, cam.cy, cam.cy + 1])
-    carrier = calibration.model.phase_at_depth((near + far) / 2, u, v)
-    rows = calibration.code_row_phase_at_depth(0, (near + far) / 2, u, v)
-    return tuple(axis for axis, falls in ((0, rows[2] < rows[0]), (1, carrier[1] < carrier[0])) if falls)
+    carrier = calibration.centre_gradient(calibration.model.phase_at_depth)
+    rows = calibration.centre_gradient(lambda depth, u, v: calibration.code_row_phase_at_depth(0, depth, u, v))
+    return tuple(axis for axis, falls in ((0, rows[1] < 0), (1, carrier[0] < 0)) if falls)
 
 
 def warm_up_frame(calibration: Calibration) -> np.ndarray:

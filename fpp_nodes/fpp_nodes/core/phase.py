@@ -289,7 +289,7 @@ def ftp_wrapped_phase(
     return np.mod(np.angle(analytic), TWO_PI), 2.0 * np.abs(analytic)
 
 
-def code_lobe_centres(image: np.ndarray, count: int, rising=(1.0, 0.0)) -> list[tuple[float, float]]:
+def code_lobe_centres(image: np.ndarray, count: int, rising) -> list[tuple[float, float]]:
     """Where the composite's count code gratings sit in an image's spectrum (cycles per image width and
     height): the count strongest lobes nearer the spectrum's vertical axis than its horizontal one (the
     codes' fringes are nearly horizontal, the carrier's vertical), past the albedo's within 4 cycles of
