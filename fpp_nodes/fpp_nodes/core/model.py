@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 from importlib import resources
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -141,7 +142,7 @@ class DepthModel:
         changes if the calibration cannot be used."""
         if calibration is not None and calibration is self.calibration:
             return  # the decoder's maps take a while to build
-        size, scale, mirror = self.trained_size, 1.0, ()
+        size, scale, layout = self.trained_size, 1.0, Layout()
         if calibration is not None:
             if self.reads != calibration.patterns.single_shot:
                 raise ModelError(
@@ -154,7 +155,7 @@ class DepthModel:
                 size, scale = (cam.width, cam.height), self.card_calibration.fringe_period_px()
                 scale /= calibration.fringe_period_px()
                 scale = 1.0 if abs(scale - 1) <= PERIOD_TOLERANCE else scale
-                mirror = mirrored_axes(calibration)
+                layout = network_layout(calibration, self.card_calibration)
             elif (cam.width, cam.height) != size:
                 raise ModelError(
                     f"the model was trained for {size[0]}x{size[1]} images, "
@@ -172,9 +173,10 @@ class DepthModel:
             except PhaseError as e:
                 whose = "its card's" if calibration is None or self.output == "fringe_order" else "the rig's"
                 raise ModelError(f"the model cannot decode with {whose} calibration: {e}") from None
-        self.calibration, self.size, self.scale, self.mirror = calibration, size, scale, mirror
-        # what the network reads: the image at 1/downsample, or resampled to the trained fringe period
-        self.input_size = tuple(round(n * scale) // self.downsample for n in size)
+        self.calibration, self.size, self.scale, self.layout = calibration, size, scale, layout
+        # what the network reads: the image (laid out as training showed it) at 1/downsample, or resampled
+        # to the trained fringe period
+        self.input_size = tuple(round(n * scale) // self.downsample for n in layout.size(size))
 
     def warnings(self) -> dict[str, str]:
         """After a frame of a composite model: {what the frame was: what to say} where its scene, or part
@@ -223,11 +225,9 @@ class DepthModel:
         padded input's resolution with r^2 times the channels, where the card says pixel_shuffle r).
         cnn_depth runs it on its network's thread, and laid_out on the decoding thread."""
         self.check(image)
-        x = network_input(image)
-        if self.mirror:  # as training showed the fringes (mirrored_axes)
-            x = np.ascontiguousarray(np.flip(x, self.mirror))
+        x = self.layout.shown(network_input(image))
         w, h = self.input_size
-        if (w, h) != self.size:
+        if (w, h) != x.shape[::-1]:
             x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA if w < self.size[0] else cv2.INTER_LINEAR)
         x = cv2.copyMakeBorder(x, 0, (-h) % STRIDE, 0, (-w) % STRIDE, cv2.BORDER_REPLICATE)
         return self.session.run([self.output], {"image": x[None, None]})[0][0]
@@ -238,10 +238,9 @@ class DepthModel:
         w, h = self.input_size
         out = (fused.pixel_shuffle(raw, self.shuffle) if self.shuffle > 1 else raw)[:, :h, :w]
         if self.scale != 1.0:
-            out = np.stack([cv2.resize(c, self.size, interpolation=cv2.INTER_LINEAR) for c in out])
-        if self.mirror:
-            out = np.ascontiguousarray(np.flip(out, [axis + 1 for axis in self.mirror]))
-        return out
+            size = self.layout.size(self.size)
+            out = np.stack([cv2.resize(c, size, interpolation=cv2.INTER_LINEAR) for c in out])
+        return self.layout.undone(out)
 
     def sidebands(self, image: np.ndarray, out: np.ndarray) -> np.ndarray | None:
         """The stripes rule's evidence, the image's code sidebands (code_sidebands), for a composite
@@ -284,15 +283,49 @@ class DepthModel:
         return trusted_single_shot(depth, image), None
 
 
-def mirrored_axes(calibration: Calibration) -> tuple[int, ...]:
-    """The image axes (0: up-down, 1: left-right) along which a composite rig shows its fringes mirrored
-    from how training showed them, by its calibration's models (Calibration.centre_gradient): the
-    carrier's phase rising to the right and the codes' rows running down. A projector showing its image
-    mirrored (rear or ceiling mode) turns them, and a network reads a mirrored carrier's phase backwards
-    (every pixel was NaN): the image is mirrored back before the network, its outputs after it."""
-    carrier = calibration.centre_gradient(calibration.model.phase_at_depth)
-    rows = calibration.centre_gradient(lambda depth, u, v: calibration.code_row_phase_at_depth(0, depth, u, v))
-    return tuple(axis for axis, falls in ((0, rows[1] < 0), (1, carrier[0] < 0)) if falls)
+class Layout(NamedTuple):
+    """How a rig's frames are turned to show the network their fringes as its training did: transposed
+    (rows for columns), then mirrored along flipped (0: up-down, 1: left-right); the network's outputs
+    are turned back. The identity where the rig shows them as training did."""
+
+    transposed: bool = False
+    flipped: tuple[int, ...] = ()
+
+    def size(self, size: tuple[int, int]) -> tuple[int, int]:
+        """A frame's (width, height) as the network sees it."""
+        return size[::-1] if self.transposed else size
+
+    def shown(self, image: np.ndarray) -> np.ndarray:
+        """A frame (H, W) as the network is shown it."""
+        return np.ascontiguousarray(np.flip(image.T if self.transposed else image, self.flipped))
+
+    def undone(self, out: np.ndarray) -> np.ndarray:
+        """The network's outputs (C, H, W) turned back to the frame's layout."""
+        x = np.flip(out, [axis + 1 for axis in self.flipped])
+        return np.ascontiguousarray(x.transpose(0, 2, 1) if self.transposed else x)
+
+
+def network_layout(calibration: Calibration, trained: Calibration) -> Layout:
+    """How a composite rig's frames are turned (Layout) to show their fringes as the training rig's
+    (trained, the model card's calibration) showed them, by each calibration's models at its image centre
+    (Calibration.centre_gradient): the axis across which the carrier's phase runs and which way it rises,
+    and which way the codes' rows run. A projector showing its image mirrored (rear or ceiling mode)
+    mirrors them, a camera mounted turned a quarter (portrait) transposes them, and a network reads the
+    carrier of such frames wrongly (a mirrored carrier's phase backwards: every pixel was NaN)."""
+
+    def gradients(cal):  # the carrier's and the first code's rows': (along a row, down a column) each
+        rows = cal.centre_gradient(lambda depth, u, v: cal.code_row_phase_at_depth(0, depth, u, v))
+        return cal.centre_gradient(cal.model.phase_at_depth), rows
+
+    (carrier, rows), (want_carrier, want_rows) = gradients(calibration), gradients(trained)
+    across = int(abs(want_carrier[1]) > abs(want_carrier[0]))  # the gradient's component the carrier runs along
+    transposed = int(abs(carrier[1]) > abs(carrier[0])) != across
+    if transposed:
+        carrier, rows = carrier[::-1], rows[::-1]
+    # a gradient's component 0 runs along image axis 1 (left-right), component 1 along axis 0 (up-down)
+    flipped = [1 - across] if carrier[across] * want_carrier[across] < 0 else []
+    flipped += [across] if rows[1 - across] * want_rows[1 - across] < 0 else []
+    return Layout(bool(transposed), tuple(sorted(flipped)))
 
 
 def warm_up_frame(calibration: Calibration) -> np.ndarray:

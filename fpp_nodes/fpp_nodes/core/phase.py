@@ -282,7 +282,7 @@ def ftp_wrapped_phase(
         raise PhaseError("image too narrow to find a fringe carrier")
     if carrier is None:
         carrier = fx[search][np.argmax(row_power[search])]
-    half = max(band * carrier, 1.0)
+    half = max(band * abs(carrier), 1.0)  # a carrier falling along +x (a mirrored projector): its negative lobe
     wx = np.where(np.abs(fx - carrier) < half, 0.5 * (1 + np.cos(np.pi * (fx - carrier) / half)), 0.0)
     wy = np.where(np.abs(fy) < half, 0.5 * (1 + np.cos(np.pi * fy / half)), 0.0)
     analytic = np.fft.ifft2(spectrum * wy[:, None] * wx[None, :])
@@ -291,27 +291,30 @@ def ftp_wrapped_phase(
 
 def code_lobe_centres(image: np.ndarray, count: int, rising) -> list[tuple[float, float]]:
     """Where the composite's count code gratings sit in an image's spectrum (cycles per image width and
-    height): the count strongest lobes nearer the spectrum's vertical axis than its horizontal one (the
-    codes' fringes are nearly horizontal, the carrier's vertical), past the albedo's within 4 cycles of
-    zero; finest rows (most cycles down) first, as patterns.COMPOSITE_CODES. A camera rolled about its
-    axis rolls every lobe: by direction they are told apart up to about 30 degrees (the fine code's lobe
-    lies 12 degrees off the vertical). Each lobe is one of a mirrored pair, whose phases are opposite:
-    the finest code's is the one whose phase rises along the carrier's (rising: the carrier phase's
-    gradient, per pixel along a row and down a column), the others' those whose rows run as its do, so a
-    projector showing its image mirrored (rear or ceiling mode) is read as it is."""
+    height): the count strongest lobes nearer square to the carrier's fringes than along them (the codes'
+    rows run nearly along the carrier's fringes; rising: the carrier phase's gradient, per pixel along a
+    row and down a column), past the albedo's within 4 cycles of zero; finest rows (most cycles across
+    the carrier's gradient) first, as patterns.COMPOSITE_CODES. A camera rolled about its axis rolls
+    every lobe: by direction they are told apart up to about 30 degrees (the fine code's lobe lies 12
+    degrees off the carrier's fringes), and a camera mounted turned a quarter (portrait) is read as it
+    is. Each lobe is one of a mirrored pair, whose phases are opposite: the finest code's is the one
+    whose phase rises along the carrier's, the others' those whose rows run as its do, so a projector
+    showing its image mirrored (rear or ceiling mode) is read as it is."""
     img = np.asarray(image, np.float64)
     h, w = img.shape
     power = np.abs(np.fft.fft2(img - img.mean()))
     fx = (np.fft.fftfreq(w) * w)[None, :]
     fy = (np.fft.fftfreq(h) * h)[:, None]
-    power[(np.hypot(fx, fy) < 4.0) | (np.abs(fy) <= np.abs(fx))] = 0
+    gx, gy = np.asarray(rising, np.float64) / np.hypot(*rising)
+    along, across = (fx / w * gx + fy / h * gy, fy / h * gx - fx / w * gy)  # per pixel, as the carrier runs
+    power[(np.hypot(fx, fy) < 4.0) | (np.abs(across) <= np.abs(along))] = 0
     lobes = []
     for _ in range(count):
         row, col = np.unravel_index(np.argmax(power), power.shape)
         lobes.append((float(fx[0, col]), float(fy[row, 0])))
         for sign in (1, -1):  # the lobe and its mirror
             power[np.hypot(fx - sign * lobes[-1][0], fy - sign * lobes[-1][1]) < 0.25 * np.hypot(*lobes[-1])] = 0
-    lobes.sort(key=lambda c: -abs(c[1]))
+    lobes.sort(key=lambda c: -abs(c[1] / h * gx - c[0] / w * gy))
 
     def towards(lobe, direction):  # the lobe of the pair whose phase rises along direction (per pixel)
         along = lobe[0] / w * direction[0] + lobe[1] / h * direction[1]

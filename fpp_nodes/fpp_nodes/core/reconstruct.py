@@ -740,7 +740,9 @@ def composite_ftp_phases(image: np.ndarray, calibration: Calibration):
         for code in cal.code_phases_at_depth(cal.reference_depth_mm, carrier, u, v)
     ]
     codes = ftp_code_phases(image, centres)
-    carrier, amplitude = ftp_wrapped_phase(image, True, carrier=np.median(np.diff(carrier, axis=1)) * w / TWO_PI)
+    across = [np.median(np.diff(carrier, axis=1)) * w / TWO_PI, np.median(np.diff(carrier, axis=0)) * h / TWO_PI]
+    vertical = abs(across[0]) / w >= abs(across[1]) / h  # a camera mounted turned a quarter sees them horizontal
+    carrier, amplitude = ftp_wrapped_phase(image, vertical, carrier=across[0] if vertical else across[1])
     return carrier, codes, amplitude
 
 
