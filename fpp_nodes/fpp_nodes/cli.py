@@ -209,6 +209,8 @@ def _calibrate_board(args, board: Board, patterns: PatternSet, sensor: CameraInt
     for name, c in (("camera", calibration.camera), ("projector", report.projector)):
         lens = ", ".join(f"{k:.4g}" for k in c.distortion)
         print(f"{name}: f {c.fx:.1f} x {c.fy:.1f} px, principal point ({c.cx:.1f}, {c.cy:.1f}), distortion {lens}")
+    if report.projector_mirrored:
+        print("the projector shows its image mirrored left-right (rear mode): its columns were read mirrored back")
     print(
         f"projector {np.linalg.norm(report.translation_mm):.1f} mm from the camera; the phase-to-depth model is "
         f"within {report.model_fit_mm * 1000:.2f} um RMS of exact triangulation through this geometry"

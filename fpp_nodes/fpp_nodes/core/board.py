@@ -43,6 +43,9 @@ LENS_MODELS = {
     "full": cv2.CALIB_FIX_K3,
 }
 DEPTH_MARGIN_MM = 100.0  # the model covers the boards' depths and this much either side
+# a pose whose corners the calibrated projector puts further than this from where its fringes put them (RMS, px)
+# is refused: the simulated rigs' poses give at most 0.3 px, a mirrored projector read as a pinhole gave 8-41 px
+MAX_PROJECTOR_PX = 2.0
 
 
 @dataclass(frozen=True)
@@ -118,6 +121,7 @@ class BoardReport:
     rotation: np.ndarray
     translation_mm: np.ndarray
     model_fit_mm: float  # RMS depth difference of the rational model from exact triangulation, over the virtual planes
+    projector_mirrored: bool = False  # it shows its image mirrored (rear mode): its columns read mirrored back
 
 
 def horizontal_patterns(patterns: PatternSet) -> PatternSet:
@@ -264,6 +268,12 @@ def calibrate_from_board(
         objects.append(board.object_points()[seen])
         camera_points.append(corners[seen].astype(np.float32))
         projector_points.append(projected[seen].astype(np.float32))
+    # a projector showing its image mirrored (rear mode) is no pinhole: its columns are read mirrored back, and
+    # mirrored again in the model (ceiling mode mirrors both ways: a half turn, which the pose takes up)
+    mirrored = projector_mirrored(objects, camera_points, projector_points)
+    if mirrored:
+        for points in projector_points:
+            points[:, 0] = patterns.width - 1 - points[:, 0]
     projector_size = (patterns.width, patterns.height)
     _, k_proj, d_proj, *_ = cv2.calibrateCamera(objects, projector_points, projector_size, None, None, flags=flags)
     _, k_cam, d_cam, k_proj, d_proj, rotation, translation, *_ = cv2.stereoCalibrate(
@@ -287,23 +297,49 @@ def calibrate_from_board(
         proj = cv2.projectPoints(objects[i], r_proj, t_proj, k_proj, d_proj)[0].reshape(-1, 2)
         depth = float((cv2.Rodrigues(rvecs[i])[0] @ board.centre() + tvecs[i].ravel())[2])
         reports.append(PoseReport(pose.name, depth, _rms(cam_err), _rms(proj - projector_points[i]), len(objects[i])))
+    worst = max(reports, key=lambda r: r.projector_px)
+    if worst.projector_px > MAX_PROJECTOR_PX:
+        raise CalibrationError(
+            f"pose {worst.name}: the calibrated projector puts its corners {worst.projector_px:.1f} px RMS from where "
+            f"its fringes put them (at most {MAX_PROJECTOR_PX:g}): are the poses' fringe sets the pattern set's, in "
+            "order, and is the projector's image shown unscaled?"
+        )
     depths = [r.depth_mm for r in reports]
     model, code_models, fit_mm = model_from_geometry(
-        camera, patterns, rotation, translation, k_proj, d_proj, (min(depths), max(depths))
+        camera, patterns, rotation, translation, k_proj, d_proj, (min(depths), max(depths)), mirrored
     )
     reference = float(np.median(depths)) if reference_depth_mm is None else float(reference_depth_mm)
-    report = BoardReport(reports, _intrinsics(k_proj, d_proj, projector_size), rotation, translation.ravel(), fit_mm)
+    projector = _intrinsics(k_proj, d_proj, projector_size)
+    report = BoardReport(reports, projector, rotation, translation.ravel(), fit_mm, mirrored)
     working_range = working_range_mm or (min(depths), max(depths))
     return Calibration(camera, model, patterns, reference, code_models, working_range), report
 
 
-def model_from_geometry(camera, patterns, rotation, translation, k_proj, d_proj, depth_range_mm, step: int = 4):
+def projector_mirrored(objects, camera_points, projector_points) -> bool:
+    """Whether the projector shows its image mirrored: the boards' corners (objects, on each board) turn
+    the other way in it than in the camera (in most poses), which no pinhole does."""
+
+    def turn(board, points):  # +1 or -1: which way the board's x axis turns onto its y axis in points
+        homography, _ = cv2.findHomography(board[:, :2].astype(np.float64), points.astype(np.float64))
+        centre = board[:, :2].mean(axis=0)
+        corner = np.array([[centre, centre + (1, 0), centre + (0, 1)]], np.float64)
+        a, b, c = cv2.perspectiveTransform(corner, homography)[0]
+        return np.sign((b - a)[0] * (c - a)[1] - (b - a)[1] * (c - a)[0])
+
+    turns = [turn(o, c) * turn(o, p) for o, c, p in zip(objects, camera_points, projector_points)]
+    return bool(np.median(turns) < 0)
+
+
+def model_from_geometry(
+    camera, patterns, rotation, translation, k_proj, d_proj, depth_range_mm, mirrored: bool = False, step: int = 4
+):
     """The rational phase-to-depth model (and, with the composite pattern, its code models; and the
     model's RMS depth difference from exact triangulation over the samples) fitted to
     virtual planes square to the camera across depth_range_mm widened by DEPTH_MARGIN_MM: each
     sampled pixel's ray meets each plane, the projector (rotation, translation from the camera's
     frame; intrinsics, distortion) sees the meeting point at (xp, yp), the carrier's phase there is
-    2 pi f_max xp / W and each code's row phase 2 pi fy yp / H (patterns.composite_pattern)."""
+    2 pi f_max xp / W and each code's row phase 2 pi fy yp / H (patterns.composite_pattern); xp mirrored
+    (W - 1 - xp) where the projector shows its image mirrored."""
     x, y = (a[::step, ::step].ravel() for a in camera.rays())
     u, v = (np.broadcast_to(a, camera.shape)[::step, ::step].ravel() for a in camera.ideal_pixels())
     near, far = depth_range_mm[0] - DEPTH_MARGIN_MM, depth_range_mm[1] + DEPTH_MARGIN_MM
@@ -311,6 +347,7 @@ def model_from_geometry(camera, patterns, rotation, translation, k_proj, d_proj,
     for z in np.linspace(near, far, VIRTUAL_PLANES):
         points = np.stack([x * z, y * z, np.full(x.size, z)], axis=-1)
         xp, yp = cv2.projectPoints(points, cv2.Rodrigues(rotation)[0], translation, k_proj, d_proj)[0].reshape(-1, 2).T
+        xp = patterns.width - 1 - xp if mirrored else xp
         lit = (xp >= 0) & (xp <= patterns.width - 1) & (yp >= 0) & (yp <= patterns.height - 1)
         phase = TWO_PI * patterns.frequencies[-1] * xp / patterns.width
         chi = [TWO_PI * fy * yp[lit] / patterns.height + phase[lit] for _, fy in patterns.code_frequencies]
