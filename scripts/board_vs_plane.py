@@ -19,7 +19,7 @@ import argparse
 
 import numpy as np
 
-from fpp_nodes.core.board import LENS_MODELS, Board, BoardPose, calibrate_from_board, horizontal_patterns
+from fpp_nodes.core.board import LENS_MODELS, Board, BoardPose, board_patterns, calibrate_from_board
 from fpp_nodes.core.calibration import back_project
 from fpp_nodes.core.metrics import ErrorTotals
 from fpp_nodes.core.reconstruct import PspReconstructor
@@ -80,7 +80,7 @@ def main():
         poses = []
         for i, (rotation, translation) in enumerate(board_poses(rig, board, 15, rng)):
             scene = board_scene(rig, board, rotation, translation)
-            image, stacks = render_pose(rig, scene, [patterns, horizontal_patterns(patterns)], rng)
+            image, stacks = render_pose(rig, scene, board_patterns(patterns), rng)
             poses.append(BoardPose(f"pose_{i:02d}", image, *stacks))
         for model in LENS_MODELS if draw == 0 else ("k1",):
             calibration, report = calibrate_from_board(poses, board, patterns, lens=model)

@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from . import pictures
 from .core import io
-from .core.board import LENS_MODELS, Board, BoardPose, calibrate_from_board, horizontal_patterns
+from .core.board import LENS_MODELS, Board, BoardPose, board_patterns, calibrate_from_board
 from .core.calibration import Calibration, CalibrationError, CameraIntrinsics, back_project
 from .core.metrics import depth_errors
 from .core.patterns import PatternSet, generate_patterns
@@ -112,7 +112,7 @@ def cmd_simulate(args) -> None:
 def _simulate_board(rig: Rig, patterns: PatternSet, board: Board, count: int, seed: int, out: Path) -> None:
     """count poses of a calibration board, each in a folder as fpp calibrate --board reads them."""
     rng = np.random.default_rng(seed)
-    sets = [patterns, horizontal_patterns(patterns)]
+    sets = board_patterns(patterns)
     for i, (rotation, translation) in enumerate(tqdm(board_poses(rig, board, count, rng), desc="poses", disable=None)):
         image, (vertical, horizontal) = render_pose(rig, board_scene(rig, board, rotation, translation), sets, rng)
         folder = out / f"pose_{i:02d}"

@@ -124,10 +124,13 @@ class BoardReport:
     projector_mirrored: bool = False  # it shows its image mirrored (rear mode): its columns read mirrored back
 
 
-def horizontal_patterns(patterns: PatternSet) -> PatternSet:
-    """The calibration's second fringe set: the same frequencies and steps with horizontal fringes
-    (projector rows), without the single-shot frame."""
-    return replace(patterns, orientation="horizontal", single_shot="paper")
+def board_patterns(patterns: PatternSet) -> tuple[PatternSet, PatternSet]:
+    """The fringe sets a board pose shows, vertical then horizontal fringes (the projector's columns, then
+    its rows): the calibration's own set (with its single-shot frame) for its fringes' way, and the same
+    frequencies and steps the other way, without it."""
+    vertical = patterns.orientation == "vertical"
+    crossed = replace(patterns, orientation="horizontal" if vertical else "vertical", single_shot="paper")
+    return (patterns, crossed) if vertical else (crossed, patterns)
 
 
 def find_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
@@ -166,7 +169,7 @@ def projector_coordinates(pose: BoardPose, patterns: PatternSet) -> tuple[np.nda
     """Every pixel's projector column and row (from the vertical and horizontal fringes' unwrapped
     phases: phase = 2 pi f_max s / L) and where both are trustworthy."""
     out, ok = [], None
-    for images, p in ((pose.vertical, patterns), (pose.horizontal, horizontal_patterns(patterns))):
+    for images, p in zip((pose.vertical, pose.horizontal), board_patterns(patterns)):
         phase, valid, _, noise, _ = multi_frequency_phase(np.asarray(images), p)
         valid &= noise <= MAX_PHASE_NOISE_RAD
         ok = valid if ok is None else ok & valid
@@ -338,8 +341,8 @@ def model_from_geometry(
     virtual planes square to the camera across depth_range_mm widened by DEPTH_MARGIN_MM: each
     sampled pixel's ray meets each plane, the projector (rotation, translation from the camera's
     frame; intrinsics, distortion) sees the meeting point at (xp, yp), the carrier's phase there is
-    2 pi f_max xp / W and each code's row phase 2 pi fy yp / H (patterns.composite_pattern); xp mirrored
-    (W - 1 - xp) where the projector shows its image mirrored."""
+    2 pi f_max xp / W and each code's row phase 2 pi fy yp / H (patterns.composite_phases; yp and xp for
+    horizontal fringes); xp mirrored (W - 1 - xp) where the projector shows its image mirrored."""
     x, y = (a[::step, ::step].ravel() for a in camera.rays())
     u, v = (np.broadcast_to(a, camera.shape)[::step, ::step].ravel() for a in camera.ideal_pixels())
     near, far = depth_range_mm[0] - DEPTH_MARGIN_MM, depth_range_mm[1] + DEPTH_MARGIN_MM
@@ -349,8 +352,9 @@ def model_from_geometry(
         xp, yp = cv2.projectPoints(points, cv2.Rodrigues(rotation)[0], translation, k_proj, d_proj)[0].reshape(-1, 2).T
         xp = patterns.width - 1 - xp if mirrored else xp
         lit = (xp >= 0) & (xp <= patterns.width - 1) & (yp >= 0) & (yp <= patterns.height - 1)
-        phase = TWO_PI * patterns.frequencies[-1] * xp / patterns.width
-        chi = [TWO_PI * fy * yp[lit] / patterns.height + phase[lit] for _, fy in patterns.code_frequencies]
+        across, along = patterns.across_along(xp, yp)
+        phase = TWO_PI * patterns.frequencies[-1] * across
+        chi = [TWO_PI * fb * along[lit] + phase[lit] for _, fb in patterns.code_frequencies]
         samples.append((u[lit], v[lit], phase[lit], np.full(lit.sum(), z), *chi))
     if sum(len(s[0]) for s in samples) < 1000:
         raise CalibrationError("the calibrated projector lights almost none of the camera's view: check the poses")

@@ -113,10 +113,18 @@ class PatternSet:
 
     @property
     def code_frequencies(self) -> list[tuple[float, float]]:
-        """Each composite code grating's fringes across the width and down the height (f_max / K, H / P,
-        P scaled with the carrier's period: REFERENCE_CARRIER_PERIOD_PX)."""
-        scale = self.width / self.frequencies[-1] / REFERENCE_CARRIER_PERIOD_PX
-        return [(self.frequencies[-1] / orders, self.height / (period * scale)) for orders, period in COMPOSITE_CODES]
+        """Each composite code grating's fringes across the pattern's fringes and along them (f_max / K, and
+        the pattern's extent along them / P, P scaled with the carrier's period: REFERENCE_CARRIER_PERIOD_PX)."""
+        scale = self.period_axis_length / self.frequencies[-1] / REFERENCE_CARRIER_PERIOD_PX
+        along = self.height if self.orientation == "vertical" else self.width
+        return [(self.frequencies[-1] / orders, along / (period * scale)) for orders, period in COMPOSITE_CODES]
+
+    def across_along(self, xp, yp) -> tuple[np.ndarray, np.ndarray]:
+        """Projector coordinates (column xp, row yp; fractional or not) as fractions of the pattern across
+        its fringes and along them: the column and the row for vertical fringes, the row and the column
+        for horizontal ones (a projector above or below the camera)."""
+        x, y = np.asarray(xp, np.float64) / self.width, np.asarray(yp, np.float64) / self.height
+        return (x, y) if self.orientation == "vertical" else (y, x)
 
     def shifts(self) -> np.ndarray:
         """delta_j = 2 pi j / N for j = 0 .. N-1."""
@@ -166,10 +174,6 @@ def validate_pattern_set(p: PatternSet) -> None:
         raise PatternError(f"gamma must be > 0, got {p.gamma}")
     if p.single_shot not in SINGLE_SHOT_KINDS:
         raise PatternError(f"single_shot must be one of {', '.join(SINGLE_SHOT_KINDS)}, got {p.single_shot!r}")
-    if p.single_shot == "composite" and p.orientation != "vertical":
-        raise PatternError(
-            "the composite single-shot pattern needs vertical fringes (its code runs across the baseline)"
-        )
 
 
 def fringe_value(p: PatternSet, frequency: int, step: int, x: np.ndarray) -> np.ndarray:
@@ -189,8 +193,8 @@ def pattern_dtype(p: PatternSet):
 def composite_phases(p: PatternSet, xp, yp) -> list[np.ndarray]:
     """The phases of the composite's gratings at projector pixel coordinates (xp, yp), fractional
     or not (where a surface point lands, in a simulation): the carrier's first, then each code's."""
-    x, y = np.asarray(xp, np.float64) / p.width, np.asarray(yp, np.float64) / p.height
-    return [2.0 * np.pi * (fx * x + fy * y) for fx, fy in [(p.frequencies[-1], 0.0), *p.code_frequencies]]
+    across, along = p.across_along(xp, yp)
+    return [2.0 * np.pi * (fa * across + fb * along) for fa, fb in [(p.frequencies[-1], 0.0), *p.code_frequencies]]
 
 
 def composite_radiance(carrier, codes) -> np.ndarray:

@@ -133,10 +133,10 @@ def test_a_distorted_camera_sees_a_plane_where_the_lens_model_puts_it(ideal_rig)
 
 def test_horizontal_fringes_tell_the_projector_row(ideal_rig):
     """The board calibration's second fringe set: its unwrapped phase is 2 pi f_max y_p / H."""
-    from fpp_nodes.core.board import horizontal_patterns
+    from fpp_nodes.core.board import board_patterns
     from fpp_nodes.core.reconstruct import multi_frequency_phase
 
-    patterns = horizontal_patterns(ideal_rig.pattern_set(bit_depth=16))
+    _, patterns = board_patterns(ideal_rig.pattern_set(bit_depth=16))
     capture = render(ideal_rig, plane_scene(ideal_rig, 1180.0, tilt_x_deg=15.0), patterns)
     phase, valid, _, _, _ = multi_frequency_phase(capture.images, patterns)
     row = phase * ideal_rig.projector_height / (2 * np.pi * patterns.frequencies[-1])
