@@ -241,19 +241,20 @@ def _neighbour_rule(up, row, down, max_step, out):
 
 
 @numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
-def code_phase(carrier, codes, intercepts, rates, spacings, lowest, low, high, max_miss):
+def code_phase(carrier, codes, intercepts, rates, spacings, lowest, low, high, max_miss, turns):
     """reconstruct.CompositeDecoder.code_phase, row by row: codes, intercepts, rates and spacings are
     (K, H, W), coarse code first; lowest, low and high the decoder's maps; max_miss (rad) the most a
-    candidate's codes may miss by, together. Both candidates are refined for every pixel and the choice
-    is a select, so that each loop vectorizes (a candidate outside the working range or missing by more
-    counts as missing by inf; where both do, NaN). float32 throughout."""
+    candidate's codes may miss by, together; turns, how many of the coarse code's turns from the lowest
+    candidate a pixel's candidates may lie in. Every turn's candidate is refined for every pixel and the
+    choice is a select, so that each loop vectorizes (a candidate outside the working range or missing
+    by more counts as missing by inf; where all do, NaN). float32 throughout."""
     height, width = carrier.shape
     count = codes.shape[0]
     own = np.empty((height, width), np.float32)
     left = np.empty((count, width), np.float32)
     base, first, last = np.empty(width, np.float32), np.empty(width, np.float32), np.empty(width, np.float32)
-    here, there = np.empty(width, np.float32), np.empty(width, np.float32)
-    miss_here, miss_there = np.empty(width, np.float32), np.empty(width, np.float32)
+    fits, turn, here = np.empty(width, np.float32), np.empty(width, np.float32), np.empty(width, np.float32)
+    miss, best, least = np.empty(width, np.float32), np.empty(width, np.float32), np.empty(width, np.float32)
     most = np.float32(max_miss * max_miss)
     for r in range(height):
         for c in range(width):
@@ -266,27 +267,28 @@ def code_phase(carrier, codes, intercepts, rates, spacings, lowest, low, high, m
             for c in range(width):
                 left[k, c] = codes[k, r, c] - intercepts[k, r, c] - rates[k, r, c] * base[c]
         coarse, spacing = left[0], spacings[0, r]
-        for c in range(width):
-            fits = (coarse[c] - _TWO_PI * np.floor(coarse[c] * _INV_TWO_PI)) / spacing[c]  # its first turn
-            here[c] = fits
-            # a turn of the coarse code nearer the middle may be inside the range too (a few % of pixels)
-            there[c] = fits - np.copysign(_TWO_PI / spacing[c], fits - np.float32(0.5) * (first[c] + last[c]))
-        _refine(here, left, spacings, r)
-        _refine(there, left, spacings, r)
-        miss_here[:] = 0
-        miss_there[:] = 0
-        for k in range(count):
-            code, spacing = left[k], spacings[k, r]
+        for c in range(width):  # where the coarse code fits in its first turn (from j = 0, either way it runs)
+            turn[c] = _TWO_PI / np.abs(spacing[c])
+            j = (coarse[c] - _TWO_PI * np.floor(coarse[c] * _INV_TWO_PI)) / spacing[c]
+            fits[c] = j + turn[c] if j < 0 else j
+            least[c] = np.inf
+        for t in range(turns):
             for c in range(width):
-                miss_here[c] += _wrapped_square(code[c] - here[c] * spacing[c])
-                miss_there[c] += _wrapped_square(code[c] - there[c] * spacing[c])
+                here[c] = fits[c] + np.float32(t) * turn[c]
+            _refine(here, left, spacings, r)
+            miss[:] = 0
+            for k in range(count):
+                code, spacing = left[k], spacings[k, r]
+                for c in range(width):
+                    miss[c] += _wrapped_square(code[c] - here[c] * spacing[c])
+            for c in range(width):
+                j, m = here[c], miss[c]
+                better = (j >= first[c]) & (j <= last[c]) & (m <= most) & (m < least[c])
+                least[c] = m if better else least[c]
+                best[c] = j if better else best[c]
         out = own[r]
         for c in range(width):
-            j, t, lo, hi, m_here, m_there = here[c], there[c], first[c], last[c], miss_here[c], miss_there[c]
-            m_here = m_here if (j >= lo) & (j <= hi) & (m_here <= most) else np.inf  # no candidate
-            m_there = m_there if (t >= lo) & (t <= hi) & (m_there <= most) else np.inf
-            j = t if m_there < m_here else j
-            out[c] = base[c] + _TWO_PI * j if min(m_here, m_there) < np.inf else np.float32(np.nan)
+            out[c] = base[c] + _TWO_PI * best[c] if least[c] < np.inf else np.float32(np.nan)
     return own
 
 

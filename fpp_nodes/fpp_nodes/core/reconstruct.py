@@ -257,6 +257,15 @@ VOTE_WINDOW, MEDIAN_WINDOW = 7, 5
 # The decoder's diagnostics of its rig (min_separation, row_fit_error) look at every GRID_STEP-th pixel
 # of every GRID_STEP-th row: both vary smoothly across the image.
 GRID_STEP = 8
+# The least separation of two orders' codes at which the composite decodes (rad: min_separation less twice
+# row_fit_error, how far each order's predicted codes may stray). Its decisions keep half of it as their margin,
+# and the shipped network's codes are off by 0.13-0.25 rad at their 95th percentile (a misaligned rig, runs/s85:
+# 0.31 gave 83-86% of the lit pixels, none off; the default rig's 0.93, the geometry rigs' of
+# scripts/single_shot_conditions.py at least 0.62 and 0.69). A projector whose rows move with depth (rolled against
+# the baseline, or above or below the camera's axis) can make the codes repeat inside the working range (rolled 3
+# degrees: 0.002), and a plane calibration that could not follow such rows between planes leaves its code models
+# jumping (its rows' drift 9 rad off a straight line).
+MIN_SEPARATION_RAD = 0.2
 # A pixel whose codes name no order takes its neighbourhood's where this share of the VOTE_WINDOW keeps its
 # own (CompositeDecoder; without it, rim pixels of a surface outside the range entered the roughness windows).
 ADOPTION_VOTE = 0.75
@@ -412,11 +421,27 @@ class CompositeDecoder:
             rate = slope + 1 / COMPOSITE_CODES[i][0]  # d(predicted code) / d(carrier phase)
             terms.append((intercept, rate, TWO_PI * rate))
         self.min_separation = self._separation(grid, *(e[on_grid] for e in ends))
+        if not self.min_separation - 2 * self.row_fit_error >= MIN_SEPARATION_RAD:
+            raise PhaseError(
+                f"on this rig the composite's codes of two orders of the working range {near:g}-{far:g} mm come "
+                f"within {self.min_separation:.2f} rad of each other, and their rows' drift strays "
+                f"{self.row_fit_error:.2f} rad from a straight line (twice that off the separation, at least "
+                f"{MIN_SEPARATION_RAD} rad tells orders apart): the "
+                "projector's rows move with depth (the projector rolled against the baseline, or above or below the "
+                "camera's axis). Narrow the working range, turn the projector's rows along the baseline, calibrate "
+                "from a board or from planes closer together (a plane calibration cannot follow rows that move half a "
+                "turn of the coarse code from one plane to the next), or measure with the multi-shot path alone "
+                "(patterns single_shot: paper)"
+            )
 
         # the candidates' phases: inside the working range, with half an order to spare at each end; the
         # coarse code's turn per pixel (rad of carrier phase)
         low, high = np.minimum(ends[0], ends[1]) - np.pi, np.maximum(ends[0], ends[1]) + np.pi
         turn = TWO_PI * TWO_PI / terms[0][2]
+        # how many of the coarse code's turns the candidates of a pixel span, from the lowest to the range's far
+        # end: 2 in the default rig (31-43 orders a turn, 26 in the window); a projector above or below the
+        # camera's axis moves the rows a pixel sees with depth, and a turn holds fewer orders (6 at 50 mm)
+        self.coarse_turns = int(np.ceil(np.max((high - lowest) / np.abs(turn)))) + 1
         maps = [*(np.stack(m) for m in zip(*terms)), lowest, low, high, turn]
         self.pixel_maps = CodeMaps(
             *(np.ascontiguousarray(np.broadcast_to(m, m.shape[:-2] + cam.shape), np.float32) for m in maps)
@@ -474,9 +499,9 @@ class CompositeDecoder:
 
         With code i's row phase a + b Phi, the j-th candidate Phi = lowest + 2 pi j predicts the code
         a + (b + 1/K_i) lowest + j s_i, s_i = 2 pi (b + 1/K_i). The coarse code fixes j up to its turns
-        (the drift leaves 31-43 orders per turn across the image, about as many as the working range
-        spans), so two values of j fit it: the one in its first turn, and that one a turn nearer the
-        middle of the range. From each, every finer code moves j to the nearest value it fits exactly
+        (the drift leaves 31-43 orders per turn across the image in the default rig, about as many as the
+        working range spans), so a value of j fits it in each turn the candidates span (coarse_turns: 2
+        there). From each, every finer code moves j to the nearest value it fits exactly
         (at most half a turn of that code away), and j rounded is a candidate. Of the candidates whose
         phase lies in the working range (half an order to spare at each end), the one all codes fit
         best (least sum of squared misses). A candidate whose codes miss by more than the decisions'
@@ -487,7 +512,16 @@ class CompositeDecoder:
         m = self.maps(carrier.shape)
         ordered = np.stack([codes[i] for i in self.code_order])
         return fused.code_phase(
-            carrier, ordered, m.intercepts, m.rates, m.spacings, m.lowest, m.low, m.high, self.min_separation / 2
+            carrier,
+            ordered,
+            m.intercepts,
+            m.rates,
+            m.spacings,
+            m.lowest,
+            m.low,
+            m.high,
+            self.min_separation / 2,
+            self.coarse_turns,
         )
 
     def outside_phase(self, carrier: np.ndarray, codes: list[np.ndarray], where: np.ndarray) -> np.ndarray:
@@ -588,7 +622,7 @@ class CompositeDecoder:
         maps = (m.intercepts, m.rates, m.spacings, m.lowest, m.low, m.high)  # code_phase's, as a row (.., 1, n)
         ordered = np.stack([codes[i] for i in self.code_order])
         row = [a.reshape(*a.shape[:-2], 1, -1)[..., where] for a in maps]
-        return fused.code_phase(carrier, ordered, *row, self.min_separation / 2)[0]
+        return fused.code_phase(carrier, ordered, *row, self.min_separation / 2, self.coarse_turns)[0]
 
     def block_orders(
         self, phasors: list, min_confidence: float, fringes: np.ndarray, sidebands: np.ndarray | None

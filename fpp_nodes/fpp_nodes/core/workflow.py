@@ -47,7 +47,7 @@ def calibrate_from_planes(
     if len(set(depths_mm)) < 3:
         raise CalibrationError(f"need planes at three or more different depths, got {sorted(set(depths_mm))}")
     ideal_u, ideal_v = (np.broadcast_to(c, camera.shape) for c in camera.ideal_pixels())  # the model's (u, v)
-    samples, rows, code_samples = [], [], []  # per plane: each code's row phase, and it plus the carrier's
+    samples, rows, phases = [], [], []  # per plane: its samples, each code's row phase, the carrier's phase
     for images, z in zip(stacks, depths_mm):
         images = np.asarray(images)
         if images.shape[1:] != camera.shape:
@@ -65,13 +65,8 @@ def calibrate_from_planes(
         u, v = ideal_u[v[keep], u[keep]], ideal_v[v[keep], u[keep]]
         samples.append((u, v, phase[valid][keep], np.full(u.size, float(z))))
         if patterns.single_shot == "composite":
-            plane = code_row_phases(images[patterns.single_shot_index], phase, valid)
-            if rows:  # the same 2 pi multiple on every plane: the row phase hardly moves with depth
-                plane = [
-                    row + TWO_PI * np.rint(np.nanmedian(first - row) / TWO_PI) for first, row in zip(rows[0], plane)
-                ]
-            rows.append(plane)
-            code_samples.append([row + phase for row in plane])
+            rows.append(code_row_phases(images[patterns.single_shot_index], phase, valid))
+            phases.append(phase)
     u, v, phase, depth = (np.concatenate(parts) for parts in zip(*samples))
     model = fit_rational_model(u, v, phase, depth)
     residuals = [float(np.sqrt(np.mean((model.depth(p, uu, vv) - z) ** 2))) for uu, vv, p, z in samples]
@@ -79,11 +74,41 @@ def calibrate_from_planes(
     code_models = []
     keep = (slice(None, None, sample_step),) * 2
     u, v = (np.tile(a[keep].ravel(), len(stacks)) for a in (ideal_u, ideal_v))
+    aligned = aligned_rows(rows, depths_mm) if rows else []
+    code_samples = [[row + phase for row in plane] for plane, phase in zip(aligned, phases)]
     for code in zip(*code_samples):  # each code's samples on every plane
         chi = np.concatenate([c[keep].ravel() for c in code])
         code_models.append(fit_code_model(u, v, chi, np.repeat(np.asarray(depths_mm, float), chi.size // len(code))))
     working_range = working_range_mm or (min(depths_mm), max(depths_mm))
     return Calibration(camera, model, patterns, reference, code_models, working_range), residuals
+
+
+def aligned_rows(rows: list, depths_mm) -> list:
+    """The planes' code row phases (rows[plane][code], code_row_phases', each a whole number of turns
+    off) with the turns that keep each plane's where the planes before it say the rows are heading:
+    planes in depth order, the coarse code's rows nearest the last step's drift carried on (in 1 /
+    depth), the finer codes' nearest the coarse code's drift (the codes see the same projector row, P_i
+    pixels a turn). A projector beside the camera's axis sees nearly the same row at every depth; one
+    20 mm above it moves the rows a pixel sees by 20 px over 200 mm, half a turn of the fine code from
+    one plane to the next, and a projector rolled a few degrees moves them with the carrier (taking the
+    first plane's turn for every plane refused both)."""
+    periods = [period for _, period in COMPOSITE_CODES]
+    coarse = int(np.argmax(periods))
+
+    def nearest(row, expected):  # row moved by the whole turns that bring it nearest expected
+        return row + TWO_PI * np.rint(np.nanmedian(expected - row) / TWO_PI)
+
+    order = np.argsort(depths_mm)
+    aligned, drift = {order[0]: rows[order[0]]}, 0.0  # drift: the coarse rows' last step per unit of 1 / depth
+    for before, plane in zip(order, order[1:]):
+        step = 1 / depths_mm[plane] - 1 / depths_mm[before]
+        moved = nearest(rows[plane][coarse], aligned[before][coarse] + drift * step) - aligned[before][coarse]
+        aligned[plane] = [
+            nearest(row, previous + moved * periods[coarse] / period)
+            for row, previous, period in zip(rows[plane], aligned[before], periods)
+        ]
+        drift = moved / step
+    return [aligned[plane] for plane in range(len(rows))]
 
 
 # A code grating's row phase on a plane is unwrapped across the plane, and where FTP cannot read the code (a

@@ -1,13 +1,14 @@
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
 import yaml
 
 from fpp_nodes.core.calibration import Calibration, CalibrationError, RationalModel, back_project, pixel_grid
+from fpp_nodes.core.phase import PhaseError
 from fpp_nodes.core.reconstruct import CompositeDecoder, reconstruct_ftp
 from fpp_nodes.core.scenes import SURFACE_DEPTH_MM, plane_scene
-from fpp_nodes.core.simulation import render
+from fpp_nodes.core.simulation import Rig, SceneRenderer, render
 from fpp_nodes.core.workflow import calibrate_from_planes
 
 
@@ -262,6 +263,61 @@ def test_a_plane_with_a_dark_spot_calibrates_the_codes_as_a_clean_one(rig, patte
     spotted = CompositeDecoder(calibrate_from_planes(stacks, depths, rig.camera(), patterns)[0])
     clean = CompositeDecoder(calibration)
     assert abs(spotted.min_separation - clean.min_separation) < 0.01 and spotted.row_fit_error < 0.01
+
+
+@dataclass(frozen=True)
+class OffAxisRig(Rig):
+    """The simulated rig with its projector below_mm down the camera's y axis (negative: above it) and
+    rolled roll_deg about its own axis: the rows a camera pixel sees move with depth."""
+
+    below_mm: float = 0.0
+    roll_deg: float = 0.0
+
+    @property
+    def projector_center(self):
+        return np.array([self.baseline_mm, self.below_mm, 0.0])
+
+    def projector_rotation(self):
+        a = np.radians(self.roll_deg)
+        roll = np.array([[np.cos(a), np.sin(a), 0.0], [-np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        return roll @ super().projector_rotation()
+
+
+def test_a_projector_off_the_cameras_axis_calibrates_from_planes_and_measures_or_says_why_not():
+    """A projector 20 mm below the camera's axis moves the rows a camera pixel sees by 20 px over the
+    planes' 200 mm, half a turn of the fine code from one plane to the next: taking the first plane's
+    turn for every plane refused the calibration; each plane's rows now follow where the planes before
+    say they are heading (workflow.aligned_rows), and the models hold the true rows to 0.01 rad. Its codes
+    come closer (0.31 rad against 0.93: the decoder's margin is half that), and the shipped network gives
+    a scene of separate objects 83.1% of its lit pixels, none off by more than 1 mm. A projector rolled 3
+    degrees makes the coarse code stand still from order to order, so two orders of the range show the
+    same codes: the decoder says so rather than decode nothing (every pixel was NaN, with a range warning)."""
+    from fpp_nodes.core.model import DepthModel, default_model_path
+    from fpp_nodes.core.scenes import make_scene
+    from fpp_nodes.core.workflow import CALIBRATION_DEPTHS_MM
+
+    for rig, works in ((OffAxisRig(below_mm=20.0), True), (OffAxisRig(roll_deg=3.0), False)):
+        patterns, rng = rig.pattern_set(), np.random.default_rng(7)
+        planes = [render(rig, plane_scene(rig, z), patterns, rng).images for z in CALIBRATION_DEPTHS_MM]
+        calibration, _ = calibrate_from_planes(
+            planes, list(CALIBRATION_DEPTHS_MM), rig.camera(), patterns, working_range_mm=SURFACE_DEPTH_MM
+        )
+        if not works:
+            with pytest.raises(PhaseError, match="come within .* rad of each other"):
+                CompositeDecoder(calibration)
+            continue
+        u, v = rig.camera().ideal_pixels()
+        for z in (1125.0, 1275.0):  # between the planes
+            seen = SceneRenderer(rig, plane_scene(rig, z)).projector_xy[1]
+            for i, (_, fy) in enumerate(patterns.code_frequencies):
+                error = calibration.code_row_phase_at_depth(i, z, u, v) - 2 * np.pi * fy * seen / patterns.height
+                assert np.abs(np.angle(np.exp(1j * error))).max() < 0.02
+        capture = render(rig, make_scene(rig, "objects", 5), patterns, np.random.default_rng(5))
+        truth = np.where(capture.valid, capture.depth_mm, np.nan)
+        depth, _ = DepthModel(default_model_path(), threads=2, calibration=calibration).infer(capture.images[-1])
+        given = np.isfinite(depth) & np.isfinite(truth)
+        assert given.sum() / np.isfinite(truth).sum() > 0.8
+        assert np.mean(np.abs(depth - truth)[given] > 1.0) < 0.002
 
 
 def test_a_camera_rolled_five_degrees_calibrates_from_planes_and_measures(rig, patterns):
