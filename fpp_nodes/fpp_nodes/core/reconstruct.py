@@ -428,10 +428,11 @@ class CompositeDecoder:
                 f"{self.row_fit_error:.2f} rad from a straight line (twice that off the separation, at least "
                 f"{MIN_SEPARATION_RAD} rad tells orders apart): the "
                 "projector's rows move with depth (the projector rolled against the baseline, or above or below the "
-                "camera's axis). Narrow the working range, turn the projector's rows along the baseline, calibrate "
-                "from a board or from planes closer together (a plane calibration cannot follow rows that move half a "
-                "turn of the coarse code from one plane to the next), or measure with the multi-shot path alone "
-                "(patterns single_shot: paper)"
+                "camera's axis). Narrow the working range, move the projector a few mm up or down or turn it a degree "
+                "(scripts/composite_alignment.py shows where on the default rig), calibrate from a board or from "
+                "planes closer together (a plane calibration cannot follow rows that move half a turn of the coarse "
+                "code from one plane to the next), or measure with the multi-shot path alone (patterns single_shot: "
+                "paper)"
             )
 
         # the candidates' phases: inside the working range, with half an order to spare at each end; the

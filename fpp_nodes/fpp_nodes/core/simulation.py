@@ -44,6 +44,10 @@ class Rig:
     blur_sigma_px: float = 0.5  # defocus, Gaussian standard deviation in camera pixels
     camera_bit_depth: int = 8
     distortion: tuple = (0.0, 0.0, 0.0, 0.0, 0.0)  # the camera lens's k1, k2, p1, p2, k3 (OpenCV's model)
+    # a projector not quite beside the camera: down the camera's y axis (negative: above it), and turned about its
+    # own axis (its rows against the baseline); both move the rows a camera pixel sees with depth
+    projector_below_mm: float = 0.0
+    projector_roll_deg: float = 0.0
 
     def __post_init__(self):
         if self.width < 8 or self.height < 8:
@@ -82,19 +86,22 @@ class Rig:
 
     @property
     def projector_center(self) -> np.ndarray:
-        return np.array([self.baseline_mm, 0.0, 0.0])
+        return np.array([self.baseline_mm, self.projector_below_mm, 0.0])
 
     def projector_rotation(self) -> np.ndarray:
-        """Rows are the projector's x, y, z axes in camera coordinates (z towards the aim point)."""
+        """Rows are the projector's x, y, z axes in camera coordinates (z towards the aim point; x level,
+        then turned by projector_roll_deg about z)."""
         z = np.array([0.0, 0.0, self.standoff_mm]) - self.projector_center
         z /= np.linalg.norm(z)
         x = np.cross([0.0, 1.0, 0.0], z)
         x /= np.linalg.norm(x)
-        return np.stack([x, np.cross(z, x), z])
+        a = np.radians(self.projector_roll_deg)
+        roll = np.array([[np.cos(a), np.sin(a), 0.0], [-np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        return roll @ np.stack([x, np.cross(z, x), z])
 
     def projector_intrinsics(self) -> tuple[float, float, float]:
         """(focal, cx, cy) of the projector in projector pixels."""
-        distance = np.hypot(self.baseline_mm, self.standoff_mm)
+        distance = np.hypot(np.hypot(self.baseline_mm, self.projector_below_mm), self.standoff_mm)  # to the aim point
         focal = self.projector_width * distance / self.projector_field_mm
         return focal, (self.projector_width - 1) / 2.0, (self.projector_height - 1) / 2.0
 

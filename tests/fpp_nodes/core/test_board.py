@@ -238,11 +238,9 @@ def test_a_projector_far_below_the_cameras_axis_decodes_from_a_board():
     (the planes, 50 mm apart, cannot follow rows that move half a turn between them: the decoder says
     so), the shipped network gives a scene of separate objects 89.4% of its lit pixels, none off by
     more than 1 mm."""
-    from test_calibration import OffAxisRig
-
     from fpp_nodes.core.model import DepthModel, default_model_path
 
-    rig = OffAxisRig(below_mm=50.0)
+    rig = Rig(projector_below_mm=50.0)
     rng = np.random.default_rng(0)
     poses = [pose(rig, r, t, rng, f"pose {i}") for i, (r, t) in enumerate(board_poses(rig, BOARD, 15, rng))]
     calibration, _ = calibrate_from_board(poses, BOARD, rig.pattern_set(), working_range_mm=(1100.0, 1300.0))

@@ -1,4 +1,4 @@
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -265,24 +265,6 @@ def test_a_plane_with_a_dark_spot_calibrates_the_codes_as_a_clean_one(rig, patte
     assert abs(spotted.min_separation - clean.min_separation) < 0.01 and spotted.row_fit_error < 0.01
 
 
-@dataclass(frozen=True)
-class OffAxisRig(Rig):
-    """The simulated rig with its projector below_mm down the camera's y axis (negative: above it) and
-    rolled roll_deg about its own axis: the rows a camera pixel sees move with depth."""
-
-    below_mm: float = 0.0
-    roll_deg: float = 0.0
-
-    @property
-    def projector_center(self):
-        return np.array([self.baseline_mm, self.below_mm, 0.0])
-
-    def projector_rotation(self):
-        a = np.radians(self.roll_deg)
-        roll = np.array([[np.cos(a), np.sin(a), 0.0], [-np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-        return roll @ super().projector_rotation()
-
-
 def test_a_projector_off_the_cameras_axis_calibrates_from_planes_and_measures_or_says_why_not():
     """A projector 20 mm below the camera's axis moves the rows a camera pixel sees by 20 px over the
     planes' 200 mm, half a turn of the fine code from one plane to the next: taking the first plane's
@@ -296,7 +278,7 @@ def test_a_projector_off_the_cameras_axis_calibrates_from_planes_and_measures_or
     from fpp_nodes.core.scenes import make_scene
     from fpp_nodes.core.workflow import CALIBRATION_DEPTHS_MM
 
-    for rig, works in ((OffAxisRig(below_mm=20.0), True), (OffAxisRig(roll_deg=3.0), False)):
+    for rig, works in ((Rig(projector_below_mm=20.0), True), (Rig(projector_roll_deg=3.0), False)):
         patterns, rng = rig.pattern_set(), np.random.default_rng(7)
         planes = [render(rig, plane_scene(rig, z), patterns, rng).images for z in CALIBRATION_DEPTHS_MM]
         calibration, _ = calibrate_from_planes(
