@@ -228,7 +228,7 @@ class DepthModel:
         x = self.layout.shown(network_input(image))
         w, h = self.input_size
         if (w, h) != x.shape[::-1]:
-            x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA if w < self.size[0] else cv2.INTER_LINEAR)
+            x = cv2.resize(x, (w, h), interpolation=cv2.INTER_AREA if w < x.shape[1] else cv2.INTER_LINEAR)
         x = cv2.copyMakeBorder(x, 0, (-h) % STRIDE, 0, (-w) % STRIDE, cv2.BORDER_REPLICATE)
         return self.session.run([self.output], {"image": x[None, None]})[0][0]
 
