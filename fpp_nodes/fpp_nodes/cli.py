@@ -41,7 +41,13 @@ from .core.workflow import (
 
 
 def _rig(args) -> Rig:
-    return Rig(noise_sigma=args.noise, blur_sigma_px=args.blur, distortion=args.distortion)
+    return Rig(
+        noise_sigma=args.noise,
+        blur_sigma_px=args.blur,
+        distortion=args.distortion,
+        projector_below_mm=args.projector_below,
+        projector_roll_deg=args.projector_roll,
+    )
 
 
 def _write_sensor(folder: Path, rig: Rig, patterns: PatternSet) -> None:
@@ -459,6 +465,20 @@ def build_parser() -> argparse.ArgumentParser:
         default=Rig.distortion,
         metavar="K1,K2,P1,P2,K3",
         help="the camera lens's distortion (OpenCV's model; default none)",
+    )
+    p.add_argument(
+        "--projector-below",
+        type=float,
+        default=Rig.projector_below_mm,
+        metavar="MM",
+        help="the projector this far down the camera's y axis (negative: above it; default 0, level with it)",
+    )
+    p.add_argument(
+        "--projector-roll",
+        type=float,
+        default=Rig.projector_roll_deg,
+        metavar="DEG",
+        help="the projector turned about its own axis, its rows against the baseline (default 0)",
     )
     p.add_argument(
         "--board",

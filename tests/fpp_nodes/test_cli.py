@@ -294,3 +294,34 @@ def test_board_calibration_from_pose_folders(tmp_path):
     assert r.returncode == 2 and "pose_03: no board.png" in r.stderr and "Traceback" not in r.stderr
     r = fpp("simulate", "--board", "9x7:8", "--distortion=1,2", "--out", tmp_path / "c")
     assert r.returncode == 2 and "five numbers" in r.stderr
+
+
+def test_a_rig_whose_codes_repeat_is_refused_with_the_reason_and_mended_by_a_narrower_range(tmp_path):
+    """A projector turned 3 degrees about its own axis (fpp simulate --projector-roll) makes the composite's
+    coarse code stand still from order to order, so two orders of 1100-1300 mm show the same codes: the
+    calibration is refused with the reason and the remedies (the shipped network gave every pixel NaN);
+    narrowed to 1150-1250 mm (scripts/composite_alignment.py: 0.64 rad apart there) it is written."""
+    planes = []
+    for z in (1100, 1200, 1300):
+        r = fpp(
+            "simulate",
+            "--scene",
+            "plane",
+            "--depth",
+            z,
+            "--seed",
+            z,
+            "--projector-roll",
+            3,
+            "--out",
+            tmp_path / f"p{z}",
+        )
+        assert r.returncode == 0, r.stderr
+        planes.append(f"{tmp_path}/p{z}:{z}")
+    assert "projector_roll_deg: 3.0" in (tmp_path / "p1100" / "capture.yaml").read_text()
+    sensor = tmp_path / "p1100" / "sensor.yaml"
+    r = fpp("calibrate", *planes, "--sensor", sensor, "--out", tmp_path / "cal.yaml")
+    assert r.returncode != 0 and not (tmp_path / "cal.yaml").exists()
+    assert "come within 0.00 rad of each other" in r.stderr and "composite_alignment.py" in r.stderr, r.stderr
+    r = fpp("calibrate", *planes, "--sensor", sensor, "--working-range", "1150:1250", "--out", tmp_path / "cal.yaml")
+    assert r.returncode == 0 and (tmp_path / "cal.yaml").is_file(), r.stderr
