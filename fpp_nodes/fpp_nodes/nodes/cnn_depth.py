@@ -91,6 +91,8 @@ class CnnDepth(Node):
         self.decoding = queue.Queue(maxsize=1)
         self._use(calibration, source)
         follow_calibration(self, lambda: self.calibration, lambda c: self._use(c, Topics.CALIBRATION))
+        started = time.monotonic()
+        self.get_logger().info("warming up: the first start after an install compiles the decoding (about 7 s)")
         self.model.warm_up()
         self.depth_pub = self.create_publisher(Image, Topics.DEPTH, Qos.LARGE)
         self.info_pub = self.create_publisher(CameraInfo, Topics.DEPTH_INFO, Qos.INFO)
@@ -106,7 +108,10 @@ class CnnDepth(Node):
                 "providers": ", ".join(self.model.providers),
             }
         )
-        self.get_logger().info(f"model {path} ({card.get('architecture')}), providers {self.model.providers}")
+        self.get_logger().info(
+            f"model {path} ({card.get('architecture')}), providers {self.model.providers}; ready after "
+            f"{time.monotonic() - started:.1f} s of warm-up"
+        )
         self.decoder_thread = threading.Thread(target=self._decode_frames, name="cnn_depth decoding", daemon=True)
         self.decoder_thread.start()
 
