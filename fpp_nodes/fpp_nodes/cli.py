@@ -45,6 +45,7 @@ def _rig(args) -> Rig:
         noise_sigma=args.noise,
         blur_sigma_px=args.blur,
         distortion=args.distortion,
+        baseline_mm=args.baseline,
         projector_below_mm=args.projector_below,
         projector_roll_deg=args.projector_roll,
     )
@@ -99,7 +100,7 @@ def cmd_patterns(args) -> None:
 
 def cmd_simulate(args) -> None:
     rig = _rig(args)
-    patterns = rig.pattern_set()
+    patterns = rig.pattern_set(orientation=args.orientation)
     out = Path(args.out)
     if args.board:
         return _simulate_board(rig, patterns, Board.parse(args.board), args.count, args.seed, out)
@@ -465,6 +466,19 @@ def build_parser() -> argparse.ArgumentParser:
         default=Rig.distortion,
         metavar="K1,K2,P1,P2,K3",
         help="the camera lens's distortion (OpenCV's model; default none)",
+    )
+    p.add_argument(
+        "--baseline",
+        type=float,
+        default=Rig.baseline_mm,
+        metavar="MM",
+        help="the projector this far to the camera's right (default %(default)s; 0 with --projector-below: above it)",
+    )
+    p.add_argument(
+        "--orientation",
+        choices=("vertical", "horizontal"),
+        default="vertical",
+        help="the fringes' way: vertical for a projector beside the camera, horizontal for one above or below",
     )
     p.add_argument(
         "--projector-below",

@@ -325,3 +325,29 @@ def test_a_rig_whose_codes_repeat_is_refused_with_the_reason_and_mended_by_a_nar
     assert "come within 0.00 rad of each other" in r.stderr and "composite_alignment.py" in r.stderr, r.stderr
     r = fpp("calibrate", *planes, "--sensor", sensor, "--working-range", "1150:1250", "--out", tmp_path / "cal.yaml")
     assert r.returncode == 0 and (tmp_path / "cal.yaml").is_file(), r.stderr
+
+
+def test_a_projector_above_the_camera_from_simulation_to_single_shot_depth(tmp_path):
+    """The whole flow for a projector 200 mm above the camera, with the tool alone: fpp simulate draws it
+    (--baseline 0 --projector-below -200 --orientation horizontal), fpp calibrate takes its planes (its
+    finer fringes: a working range of 1100-1300 mm), and fpp reconstruct --method cnn gives a scene of
+    separate objects depth from one frame (91.9% of its lit pixels, none off by more than 1 mm, in
+    test_calibration's run of the same rig)."""
+    rig = ("--baseline", 0, "--projector-below", -200, "--orientation", "horizontal")
+    planes = []
+    for z in (1100, 1200, 1300):
+        r = fpp("simulate", "--scene", "plane", "--depth", z, "--seed", z, *rig, "--out", tmp_path / f"p{z}")
+        assert r.returncode == 0, r.stderr
+        planes.append(f"{tmp_path}/p{z}:{z}")
+    sensor, calibration = tmp_path / "p1100" / "sensor.yaml", tmp_path / "cal.yaml"
+    r = fpp("calibrate", *planes, "--sensor", sensor, "--working-range", "1100:1300", "--out", calibration)
+    assert r.returncode == 0, r.stderr
+    scene = tmp_path / "scene"
+    assert fpp("simulate", "--scene", "objects", "--seed", 5, *rig, "--out", scene).returncode == 0
+    r = fpp("reconstruct", scene, "--calibration", calibration, "--method", "cnn", "--out", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+    depth, truth = np.load(tmp_path / "out" / "depth_mm.npy"), np.load(scene / "depth_gt_mm.npy")
+    lit = cv2.imread(str(scene / "valid_gt.png"), cv2.IMREAD_GRAYSCALE) > 0
+    given = np.isfinite(depth) & lit
+    assert given.sum() / lit.sum() > 0.88
+    assert np.mean(np.abs(depth - truth)[given] > 1.0) < 0.002
