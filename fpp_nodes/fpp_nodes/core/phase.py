@@ -306,19 +306,24 @@ def code_lobe_centres(image: np.ndarray, count: int, rising) -> list[tuple[float
     fx = (np.fft.fftfreq(w) * w)[None, :]
     fy = (np.fft.fftfreq(h) * h)[:, None]
     gx, gy = np.asarray(rising, np.float64) / np.hypot(*rising)
-    along, across = (fx / w * gx + fy / h * gy, fy / h * gx - fx / w * gy)  # per pixel, as the carrier runs
-    power[(np.hypot(fx, fy) < 4.0) | (np.abs(across) <= np.abs(along))] = 0
+
+    def along(fx, fy, direction=(gx, gy)):  # a lobe's frequency (cycles per image) along a direction, per pixel
+        return fx / w * direction[0] + fy / h * direction[1]
+
+    def across(fx, fy):  # ... and square to the carrier's gradient
+        return along(fx, fy, (-gy, gx))
+
+    power[(np.hypot(fx, fy) < 4.0) | (np.abs(across(fx, fy)) <= np.abs(along(fx, fy)))] = 0
     lobes = []
     for _ in range(count):
         row, col = np.unravel_index(np.argmax(power), power.shape)
         lobes.append((float(fx[0, col]), float(fy[row, 0])))
         for sign in (1, -1):  # the lobe and its mirror
             power[np.hypot(fx - sign * lobes[-1][0], fy - sign * lobes[-1][1]) < 0.25 * np.hypot(*lobes[-1])] = 0
-    lobes.sort(key=lambda c: -abs(c[1] / h * gx - c[0] / w * gy))
+    lobes.sort(key=lambda c: -abs(across(*c)))
 
     def towards(lobe, direction):  # the lobe of the pair whose phase rises along direction (per pixel)
-        along = lobe[0] / w * direction[0] + lobe[1] / h * direction[1]
-        return lobe if along > 0 else (-lobe[0], -lobe[1])
+        return lobe if along(*lobe, direction) > 0 else (-lobe[0], -lobe[1])
 
     finest = towards(lobes[0], rising)
     return [finest] + [towards(lobe, (finest[0] / w, finest[1] / h)) for lobe in lobes[1:]]
