@@ -769,16 +769,29 @@ def composite_ftp_phases(image: np.ndarray, calibration: Calibration):
     cal = calibration
     u, v = cal.camera.ideal_pixels()
     carrier = cal.model.phase_at_depth(cal.reference_depth_mm, u, v) * np.ones(image.shape)
-    h, w = image.shape
-    centres = [
-        (np.median(np.diff(code, axis=1)) * w / TWO_PI, np.median(np.diff(code, axis=0)) * h / TWO_PI)
-        for code in cal.code_phases_at_depth(cal.reference_depth_mm, carrier, u, v)
-    ]
-    codes = ftp_code_phases(image, centres)
-    across = [np.median(np.diff(carrier, axis=1)) * w / TWO_PI, np.median(np.diff(carrier, axis=0)) * h / TWO_PI]
-    vertical = abs(across[0]) / w >= abs(across[1]) / h  # a camera mounted turned a quarter sees them horizontal
-    carrier, amplitude = ftp_wrapped_phase(image, vertical, carrier=across[0] if vertical else across[1])
+    codes = ftp_code_phases(
+        image, [spectral_centre(c) for c in cal.code_phases_at_depth(cal.reference_depth_mm, carrier, u, v)]
+    )
+    vertical, cycles = carrier_lobe(carrier)
+    carrier, amplitude = ftp_wrapped_phase(image, vertical, carrier=cycles)
     return carrier, codes, amplitude
+
+
+def spectral_centre(phase: np.ndarray) -> tuple[float, float]:
+    """Where a smooth phase map's fringes sit in the image's spectrum: its median gradient, in cycles per
+    image width and height (signed: the lobe whose phase is the map's)."""
+    h, w = phase.shape
+    return float(np.median(np.diff(phase, axis=1)) * w / TWO_PI), float(np.median(np.diff(phase, axis=0)) * h / TWO_PI)
+
+
+def carrier_lobe(carrier: np.ndarray) -> tuple[bool, float]:
+    """(vertical, cycles) of a carrier phase map, as ftp_wrapped_phase takes them: whether its fringes
+    stand vertical in the image (its phase runs along the rows more than down the columns, per pixel; a
+    camera mounted turned a quarter sees them lying), and its cycles across the image that way (negative
+    where its phase falls: a mirrored projector)."""
+    (fx, fy), (h, w) = spectral_centre(carrier), carrier.shape
+    vertical = abs(fx) / w >= abs(fy) / h
+    return vertical, fx if vertical else fy
 
 
 def reconstruct_ftp(
@@ -814,12 +827,10 @@ def reconstruct_ftp(
         return Reconstruction(
             depth, back_project(depth, cal.camera), valid, amplitude.astype(np.float32), phase.astype(np.float32)
         )
-    vertical = cal.patterns.orientation == "vertical"
     reference = cal.model.phase_at_depth(cal.reference_depth_mm, u, v) * np.ones(image.shape)
+    vertical, cycles = carrier_lobe(reference)
     wrapped, amplitude = ftp_wrapped_phase(image, vertical)
-    # The lobe's phase grows along +x; flip it where the projector phase falls along +x.
-    along = reference[:, -1] - reference[:, 0] if vertical else reference[-1, :] - reference[0, :]
-    if np.median(along) < 0:
+    if cycles < 0:  # the lobe found grows along +x (+y); the projector's phase falls that way
         wrapped = np.mod(-wrapped, TWO_PI)
     phase = unwrap_spatial(wrapped)
     phase += TWO_PI * np.rint(np.median(reference - phase) / TWO_PI)
