@@ -38,11 +38,13 @@ from fpp_nodes.core.calibration import Calibration
 from fpp_nodes.core.fused import pixel_shuffle
 from fpp_nodes.core.model import (
     MIN_MODULATION,
+    TRAINING_LAYOUT,
     PhaseOrderDecoder,
     confident,
     decoded_fringes,
     local_depth,
     network_input,
+    network_layout,
     trusted_single_shot,
 )
 from fpp_nodes.core.patterns import PatternSet
@@ -50,7 +52,7 @@ from fpp_nodes.core.reconstruct import CompositeDecoder, QualityLimits, code_sid
 from fpp_nodes.core.workflow import wrong_order_mm
 
 from .dataset import load_sample, reference_depth, sample_family, sets_calibration, split_files
-from .models import CompositeNet
+from .models import CompositeNet, LaidOut
 from .train import load_checkpoint, load_initial_weights, model_from_checkpoint, model_from_config, predict
 
 PARITY_TOLERANCE_MM = 1e-3
@@ -200,6 +202,7 @@ def choose_decoding(model, data: list, calibration: Calibration, limit: int = 20
     files = [f for d in data for f in split_files(d, "val")[:limit]]
     composite = isinstance(model, CompositeNet)
     decoder = (CompositeDecoder if composite else PhaseOrderDecoder)(calibration)
+    model = LaidOut(model, network_layout(calibration)) if composite else model  # as DepthModel lays frames out
     surfaces, roughness, margins = (SURFACE_GRID, ROUGHNESS_GRID, MARGIN_GRID) if composite else ((0,), (np.inf,), (0,))
     wrong_order, step = wrong_order_mm(calibration), QualityLimits.max_depth_step_mm
     counts = parallel_counts(
@@ -363,6 +366,7 @@ def export(
             "content": patterns.names()[patterns.single_shot_index] if patterns else "unknown",
             "downsample": cfg.downsample,
             "camera": dataset.get("calibration", {}).get("camera"),
+            **({"layout": TRAINING_LAYOUT} if cfg.arch == "composite" else {}),  # as every rig's frames were shown
         },
         "output": (
             {

@@ -309,6 +309,24 @@ class CompositeNet(nn.Module):
         return nn.functional.pixel_shuffle(self.strided(image), self.pixel_shuffle)
 
 
+class LaidOut(nn.Module):
+    """A composite network shown a rig's frames (B, 1, H, W) laid out as DepthModel shows them
+    (fpp_nodes.core.model.network_layout: as the simulated rig's, which every network is trained on), its
+    outputs turned back to the rig's: a set recorded on a rig with its projector above the camera, its
+    camera turned or its projector mirrored trains and is judged as cnn_depth runs it."""
+
+    def __init__(self, net: nn.Module, layout):
+        super().__init__()
+        self.net, self.layout = net, layout
+
+    def forward(self, image):
+        axes = [axis - 2 for axis in self.layout.flipped]  # the frame's axes (0: up-down) as the tensor's last two
+        x = image.transpose(-2, -1) if self.layout.transposed else image
+        out = self.net(x.flip(axes) if axes else x)
+        out = out.flip(axes) if axes else out
+        return out.transpose(-2, -1) if self.layout.transposed else out
+
+
 ARCHITECTURES = ("fcn", "aen", "unet", "phase", "composite")
 
 

@@ -31,13 +31,13 @@ from torch.utils.data import DataLoader, Dataset, DistributedSampler
 from tqdm import tqdm
 
 from fpp_nodes.core.metrics import ErrorTotals
-from fpp_nodes.core.model import PhaseOrderDecoder, network_input
+from fpp_nodes.core.model import Layout, PhaseOrderDecoder, network_input, network_layout
 from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.reconstruct import CompositeDecoder
 from fpp_nodes.pictures import depth_colours
 
 from .dataset import load_phase_targets, load_sample, sets_calibration, split_files
-from .models import ARCHITECTURES, Separable, build, pad_to_stride
+from .models import ARCHITECTURES, LaidOut, Separable, build, pad_to_stride
 
 BCE_RANGE_MM = (1100.0, 1300.0)  # labels map to [0, 1] over this depth range for the BCE loss
 
@@ -529,6 +529,9 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
         history, start_epoch, seconds = ckpt["history"], ckpt["epoch"], ckpt["train_seconds"]
     if distributed:
         model = DistributedDataParallel(model)
+    # a composite network reads every rig's frames laid out as the simulated rig's (a set from another rig's bags)
+    layout = network_layout(calibration) if config.arch == "composite" else Layout()
+    laid_out = LaidOut(model, layout)
 
     best = min((h["val_loss"] for h in history), default=float("inf"))
     for epoch in range(start_epoch + 1, config.epochs + 1):
@@ -541,7 +544,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
             loader, desc=f"epoch {epoch}/{config.epochs}", leave=False, disable=None if rank == 0 else True
         ):
             optimizer.zero_grad()
-            pred = predict(model, image.to(device))
+            pred = predict(laid_out, image.to(device))
             if config.arch == "composite":
                 loss = composite_loss(pred, targets[0].to(device))
             elif phase_aware:
@@ -553,7 +556,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
             total, batches = total + loss.item(), batches + 1
         seconds += time.perf_counter() - started
         metrics = (
-            evaluate_phase(model, val_loader, device, decoder)
+            evaluate_phase(laid_out, val_loader, device, decoder)
             if phase_aware
             else evaluate(model, val_loader, device, config.loss)
         )
@@ -576,7 +579,7 @@ def train(config: TrainConfig, resume: str | None = None) -> dict:
         net = model.module if distributed else model
         net.eval()
         with torch.no_grad():
-            shown = predict(net, showcase[0][None].to(device))[0].cpu().numpy()
+            shown = predict(LaidOut(net, layout), showcase[0][None].to(device))[0].cpu().numpy()
         shown = decoder(shown, VALIDATION_CONFIDENCE[config.arch])[0] if phase_aware else shown[0]
         cv2.imwrite(
             str(out / "epochs" / f"epoch_{epoch:04d}.png"),

@@ -126,6 +126,16 @@ class DepthModel:
                 ) from None
             if self.downsample != 1:
                 raise ModelError(f"model card {card_path}: a phase-aware model runs at full resolution")
+            if (
+                self.output == "fringe_phases"
+                and self.card["input"].get("layout") != TRAINING_LAYOUT
+                and network_layout(self.card_calibration) != Layout()
+            ):
+                raise ModelError(
+                    f"model {path} was trained on its rig's frames as they are (exported before 2026-12-05), and "
+                    f"networks now read every rig's frames laid out as the simulated rig's ({TRAINING_LAYOUT}): "
+                    "fine-tune it again from the shipped model (docs/real-rig.md)"
+                )
             channels = self.session.get_outputs()[0].shape[1] // self.shuffle**2
             expected = 2 + 2 * len(COMPOSITE_CODES)
             if self.output == "fringe_phases" and channels != expected:
@@ -155,12 +165,13 @@ class DepthModel:
                 size, scale = (cam.width, cam.height), self.card_calibration.fringe_period_px()
                 scale /= calibration.fringe_period_px()
                 scale = 1.0 if abs(scale - 1) <= PERIOD_TOLERANCE else scale
-                layout = network_layout(calibration, self.card_calibration)
             elif (cam.width, cam.height) != size:
                 raise ModelError(
                     f"the model was trained for {size[0]}x{size[1]} images, "
                     f"the calibration's camera is {cam.width}x{cam.height}"
                 )
+        if self.output == "fringe_phases":
+            layout = network_layout(calibration or self.card_calibration)
         if self.card_calibration is not None:  # a depth-regressing model has the rig's geometry in the network
             try:
                 self.decoder = (
@@ -283,6 +294,10 @@ class DepthModel:
         return trusted_single_shot(depth, image), None
 
 
+# How every composite network is shown its frames (network_layout), as its card says (training.export)
+TRAINING_LAYOUT = "the carrier's phase rising left to right, the first code's row phase top to bottom"
+
+
 class Layout(NamedTuple):
     """How a rig's frames are turned to show the network their fringes as its training did: transposed
     (rows for columns), then mirrored along flipped (0: up-down, 1: left-right); the network's outputs
@@ -305,27 +320,22 @@ class Layout(NamedTuple):
         return np.ascontiguousarray(x.transpose(0, 2, 1) if self.transposed else x)
 
 
-def network_layout(calibration: Calibration, trained: Calibration) -> Layout:
-    """How a composite rig's frames are turned (Layout) to show their fringes as the training rig's
-    (trained, the model card's calibration) showed them, by each calibration's models at its image centre
-    (Calibration.centre_gradient): the axis across which the carrier's phase runs and which way it rises,
-    and which way the codes' rows run. A projector showing its image mirrored (rear or ceiling mode)
-    mirrors them, a camera mounted turned a quarter (portrait) transposes them, and a network reads the
-    carrier of such frames wrongly (a mirrored carrier's phase backwards: every pixel was NaN)."""
-
-    def gradients(cal):  # the carrier's and the first code's rows': (along a row, down a column) each
-        rows = cal.centre_gradient(lambda depth, u, v: cal.code_row_phase_at_depth(0, depth, u, v))
-        return cal.centre_gradient(cal.model.phase_at_depth), rows
-
-    (carrier, rows), (want_carrier, want_rows) = gradients(calibration), gradients(trained)
-    across = int(abs(want_carrier[1]) > abs(want_carrier[0]))  # the gradient's component the carrier runs along
-    transposed = int(abs(carrier[1]) > abs(carrier[0])) != across
+def network_layout(calibration: Calibration) -> Layout:
+    """How a composite rig's frames are turned (Layout) to show the network their fringes as every network
+    is trained on them, the simulated rig's way: the carrier's phase rising left to right along the rows,
+    the first code's rows rising down the columns (by the calibration's models at its image centre,
+    Calibration.centre_gradient). A projector showing its image mirrored (rear or ceiling mode) mirrors
+    them, a camera mounted turned a quarter (portrait) or a projector above the camera transposes them;
+    a network reads the carrier of such frames wrongly (a mirrored carrier's phase backwards: every pixel
+    was NaN). A set recorded on such a rig is shown to the network the same way in training
+    (training.train), so a fine-tune starts from weights that read its frames."""
+    carrier = calibration.centre_gradient(calibration.model.phase_at_depth)  # (along a row, down a column)
+    rows = calibration.centre_gradient(lambda depth, u, v: calibration.code_row_phase_at_depth(0, depth, u, v))
+    transposed = bool(abs(carrier[1]) > abs(carrier[0]))
     if transposed:
         carrier, rows = carrier[::-1], rows[::-1]
-    # a gradient's component 0 runs along image axis 1 (left-right), component 1 along axis 0 (up-down)
-    flipped = [1 - across] if carrier[across] * want_carrier[across] < 0 else []
-    flipped += [across] if rows[1 - across] * want_rows[1 - across] < 0 else []
-    return Layout(bool(transposed), tuple(sorted(flipped)))
+    # image axis 0 runs up-down, axis 1 left-right
+    return Layout(transposed, (0,) * bool(rows[1] < 0) + (1,) * bool(carrier[0] < 0))
 
 
 def warm_up_frame(calibration: Calibration) -> np.ndarray:
