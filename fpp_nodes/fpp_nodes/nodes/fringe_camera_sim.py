@@ -32,6 +32,13 @@ class FringeCameraSim(Node):
             projector_width=declare(self, "projector_width", defaults.projector_width, "pixels", True),
             projector_height=declare(self, "projector_height", defaults.projector_height, "pixels", True),
             projector_gamma=declare(self, "projector_gamma", defaults.projector_gamma, "", True),
+            baseline_mm=declare(self, "baseline_mm", defaults.baseline_mm, "projector to the camera's right, mm", True),
+            projector_below_mm=declare(
+                self, "projector_below_mm", defaults.projector_below_mm, "projector down the camera's y axis, mm", True
+            ),
+            projector_roll_deg=declare(
+                self, "projector_roll_deg", defaults.projector_roll_deg, "projector turned about its axis, deg", True
+            ),
             distortion=tuple(
                 declare(
                     self, "distortion", list(defaults.distortion), "camera lens k1, k2, p1, p2, k3 (OpenCV's)", True

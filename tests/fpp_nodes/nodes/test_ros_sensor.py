@@ -172,6 +172,31 @@ def test_a_single_shot_sensor_gives_depth_from_every_frame_not_once_a_sequence(r
         assert e.coverage > 0.85 and np.nanmedian(np.abs(image_to_numpy(d) * 1000.0 - truth_mm)) < 0.1, e
 
 
+def test_a_projector_above_the_camera_through_the_nodes(ros_graph, tmp_path):
+    """The rigs fpp simulate draws, the simulated camera draws too (baseline_mm, projector_below_mm,
+    projector_roll_deg): a projector 200 mm above the camera, showing horizontal fringes
+    (pattern_projector orientation:=horizontal), and cnn_depth with that rig's calibration, which shows
+    the network the frames transposed. Single shots on every tick, as in the test above."""
+    rig = Rig(baseline_mm=0.0, projector_below_mm=-200.0)
+    calibration, _ = simulated_calibration(
+        rig, rig.pattern_set(orientation="horizontal"), seed=7, working_range_mm=(1100.0, 1300.0)
+    )
+    calibration.save(tmp_path / "above.yaml")
+    procs, robot = ros_graph
+    procs.start("pattern_projector", "-p", "single_shot_only:=true", "-p", "orientation:=horizontal")
+    placed = ("-p", "baseline_mm:=0.0", "-p", "projector_below_mm:=-200.0")
+    procs.start("fringe_camera_sim", *placed, "-p", "scene:=objects", "-p", "seed:=5")
+    procs.start("cnn_depth", "-p", f"calibration:={tmp_path / 'above.yaml'}")
+    truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
+    depths = collect(robot, Topics.DEPTH, Image)
+    assert robot.spin_until(lambda: len(depths) >= 2 and truth, 120), procs.logs()
+    truth_mm = image_to_numpy(truth[0]) * 1000.0
+    for d in depths[:2]:
+        depth_mm = image_to_numpy(d) * 1000.0
+        e = depth_errors(depth_mm, truth_mm)
+        assert e.coverage > 0.85 and np.nanmedian(np.abs(depth_mm - truth_mm)) < 0.1, e
+
+
 def test_broken_sequences_over_dds_are_dropped_never_mixed(ros_graph):
     """A test node plays projector and camera, with a missing, a duplicated and an out-of-order frame."""
     procs, robot = ros_graph
