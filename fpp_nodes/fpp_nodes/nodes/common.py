@@ -212,4 +212,24 @@ def run(*node_factories, args=None) -> None:
             n.destroy_node()
         rclpy.try_shutdown()
         sys.exit(2)
+    warn_of_unknown_parameters(nodes)
     spin(nodes)
+
+
+RCLPY_PARAMETERS = {"use_sim_time", "start_type_description_service"}  # every rclpy node declares them
+
+
+def warn_of_unknown_parameters(nodes: list[Node]) -> list[str]:
+    """Log a warning, once, for each parameter given (-p, a parameters file) that no node of the process
+    has: rclpy ignores them without a word, so a misspelt name (min_confidance:=0.5) left the default in
+    force unnoticed. A warning, not a refusal: a parameters file shared by several nodes may hold other
+    nodes' parameters. Returns the names."""
+    given = {name for n in nodes for name in getattr(n, "_parameter_overrides", {})}  # rclpy keeps them so
+    unknown = sorted(name for name in given if not any(n.has_parameter(name) for n in nodes))
+    if unknown:
+        names = sorted({name for n in nodes for name in n.list_parameters([], 0).names} - RCLPY_PARAMETERS)
+        nodes[0].get_logger().warning(
+            f"ignored parameter{'s' * (len(unknown) > 1)} {', '.join(unknown)}: no node here has "
+            f"{'them' if len(unknown) > 1 else 'it'} (a misspelling?); the parameters here: {', '.join(names)}"
+        )
+    return unknown

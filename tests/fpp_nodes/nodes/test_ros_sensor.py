@@ -241,6 +241,28 @@ def test_a_bad_parameter_is_one_fatal_line(ros_graph):
     assert "steps must be >= 3" in procs.logs() and "Traceback" not in procs.logs()
 
 
+def test_a_parameter_no_node_has_is_named_and_the_node_runs_on(ros_graph):
+    """rclpy ignores a parameter no node declares without a word, so a misspelt one left the default in
+    force unnoticed; our nodes name it, once, with theirs, and run on (a parameters file shared by several
+    nodes may hold others'). In one process (sensor) a parameter of any of its nodes is no stranger."""
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from fpp_nodes.nodes.common import warn_of_unknown_parameters
+
+    procs, robot = ros_graph
+    patterns = collect(robot, Topics.PATTERN, Image)
+    procs.start("pattern_projector", "-p", "rte:=60", "-p", "rate:=20")
+    assert robot.spin_until(lambda: len(patterns) >= 3, 30), procs.logs()
+    assert "ignored parameter rte: no node here has it (a misspelling?); the parameters here: bit_depth" in procs.logs()
+    given = [Parameter("scene", value="objects"), Parameter("sceen", value="objects")]
+    camera, depth = (Node(name, context=robot.context, parameter_overrides=given) for name in ("camera", "depth"))
+    camera.declare_parameter("scene", "sculpture")
+    assert warn_of_unknown_parameters([camera, depth]) == ["sceen"]
+    camera.destroy_node()
+    depth.destroy_node()
+
+
 def test_the_composed_sensor_refuses_the_single_shot_only_projector(ros_graph):
     """Its capture_sequence would never complete a sequence: one line saying what to run instead."""
     procs, _ = ros_graph
