@@ -154,47 +154,50 @@ def test_each_node_in_its_own_process(ros_graph):
     check_clouds(robot, clouds, truth)
 
 
+def single_shot_depths(ros_graph, count: int, projector=(), camera=(), cnn=()) -> list:
+    """pattern_projector showing the composite alone on every tick, fringe_camera_sim and cnn_depth (each
+    with more ros arguments): the first count depth images, each checked against the simulated truth."""
+    procs, robot = ros_graph
+    procs.start("pattern_projector", "-p", "single_shot_only:=true", *projector)
+    procs.start("fringe_camera_sim", *camera)
+    procs.start("cnn_depth", *cnn)
+    truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
+    depths = collect(robot, Topics.DEPTH, Image)
+    assert robot.spin_until(lambda: len(depths) >= count and truth, 120), procs.logs()
+    truth_mm = image_to_numpy(truth[0]) * 1000.0
+    for d in depths[:count]:
+        depth_mm = image_to_numpy(d) * 1000.0
+        e = depth_errors(depth_mm, truth_mm)
+        assert e.coverage > 0.85 and np.nanmedian(np.abs(depth_mm - truth_mm)) < 0.1, e
+    return depths[:count]
+
+
 def test_a_single_shot_sensor_gives_depth_from_every_frame_not_once_a_sequence(ros_graph):
     """pattern_projector with single_shot_only shows the composite on every tick, so cnn_depth on the
     camera's frames measures far more often than once a sequence (17 ticks), and as well."""
-    procs, robot = ros_graph
-    procs.start("pattern_projector", "-p", "single_shot_only:=true")
-    procs.start("fringe_camera_sim")
-    procs.start("cnn_depth")
-    truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
-    depths = collect(robot, Topics.DEPTH, Image)
-    assert robot.spin_until(lambda: len(depths) >= 6 and truth, 120), "no depth images arrived"
-    ticks = np.diff([stamp_ns(d.header.stamp) for d in depths[:6]]) * 30 / 1e9  # the projector's 30 Hz
+    depths = single_shot_depths(ros_graph, 6)
+    ticks = np.diff([stamp_ns(d.header.stamp) for d in depths]) * 30 / 1e9  # the projector's 30 Hz
     assert ticks.min() < 17 / 2, ticks  # a sequence of 17 patterns would space them 17 ticks apart
-    truth_mm = image_to_numpy(truth[0]) * 1000.0
-    for d in depths[:6]:
-        e = depth_errors(image_to_numpy(d) * 1000.0, truth_mm)
-        assert e.coverage > 0.85 and np.nanmedian(np.abs(image_to_numpy(d) * 1000.0 - truth_mm)) < 0.1, e
 
 
 def test_a_projector_above_the_camera_through_the_nodes(ros_graph, tmp_path):
     """The rigs fpp simulate draws, the simulated camera draws too (baseline_mm, projector_below_mm,
     projector_roll_deg): a projector 200 mm above the camera, showing horizontal fringes
     (pattern_projector orientation:=horizontal), and cnn_depth with that rig's calibration, which shows
-    the network the frames transposed. Single shots on every tick, as in the test above."""
+    the network the frames transposed."""
     rig = Rig(baseline_mm=0.0, projector_below_mm=-200.0)
     calibration, _ = simulated_calibration(
         rig, rig.pattern_set(orientation="horizontal"), seed=7, working_range_mm=(1100.0, 1300.0)
     )
     calibration.save(tmp_path / "above.yaml")
-    procs, robot = ros_graph
-    procs.start("pattern_projector", "-p", "single_shot_only:=true", "-p", "orientation:=horizontal")
-    placed = ("-p", "baseline_mm:=0.0", "-p", "projector_below_mm:=-200.0")
-    procs.start("fringe_camera_sim", *placed, "-p", "scene:=objects", "-p", "seed:=5")
-    procs.start("cnn_depth", "-p", f"calibration:={tmp_path / 'above.yaml'}")
-    truth = collect(robot, Topics.TRUTH, Image, Qos.LATCHED)
-    depths = collect(robot, Topics.DEPTH, Image)
-    assert robot.spin_until(lambda: len(depths) >= 2 and truth, 120), procs.logs()
-    truth_mm = image_to_numpy(truth[0]) * 1000.0
-    for d in depths[:2]:
-        depth_mm = image_to_numpy(d) * 1000.0
-        e = depth_errors(depth_mm, truth_mm)
-        assert e.coverage > 0.85 and np.nanmedian(np.abs(depth_mm - truth_mm)) < 0.1, e
+    placed = ("-p", "baseline_mm:=0.0", "-p", "projector_below_mm:=-200.0", "-p", "scene:=objects", "-p", "seed:=5")
+    single_shot_depths(
+        ros_graph,
+        2,
+        projector=("-p", "orientation:=horizontal"),
+        camera=placed,
+        cnn=("-p", f"calibration:={tmp_path / 'above.yaml'}"),
+    )
 
 
 def test_broken_sequences_over_dds_are_dropped_never_mixed(ros_graph):
@@ -234,11 +237,19 @@ def test_broken_sequences_over_dds_are_dropped_never_mixed(ros_graph):
     assert counts in procs.logs()
 
 
-def test_a_bad_parameter_is_one_fatal_line(ros_graph):
+@pytest.mark.parametrize(
+    "executable, parameter, said",
+    [
+        ("pattern_projector", "steps:=2", "steps must be >= 3"),
+        # the composed sensor's capture_sequence would never complete a sequence: what to run instead
+        ("sensor", "single_shot_only:=true", "for a single-shot sensor run"),
+    ],
+)
+def test_a_bad_parameter_is_one_fatal_line(ros_graph, executable, parameter, said):
     procs, _ = ros_graph
-    proc = procs.start("pattern_projector", "-p", "steps:=2")
-    assert proc.wait(timeout=30) == 2
-    assert "steps must be >= 3" in procs.logs() and "Traceback" not in procs.logs()
+    proc = procs.start(executable, "-p", parameter)
+    assert proc.wait(timeout=60) == 2
+    assert said in procs.logs() and "Traceback" not in procs.logs()
 
 
 def test_a_parameter_no_node_has_is_named_and_the_node_runs_on(ros_graph):
@@ -261,14 +272,6 @@ def test_a_parameter_no_node_has_is_named_and_the_node_runs_on(ros_graph):
     assert warn_of_unknown_parameters([camera, depth]) == ["sceen"]
     camera.destroy_node()
     depth.destroy_node()
-
-
-def test_the_composed_sensor_refuses_the_single_shot_only_projector(ros_graph):
-    """Its capture_sequence would never complete a sequence: one line saying what to run instead."""
-    procs, _ = ros_graph
-    proc = procs.start("sensor", "-p", "single_shot_only:=true")
-    assert proc.wait(timeout=60) == 2
-    assert "for a single-shot sensor run" in procs.logs() and "Traceback" not in procs.logs()
 
 
 def test_no_work_for_outputs_nobody_subscribes_to(ros_graph):
