@@ -220,7 +220,7 @@ RCLPY_PARAMETERS = {"use_sim_time", "start_type_description_service"}  # every r
 
 
 def warn_of_unknown_parameters(nodes: list[Node]) -> list[str]:
-    """Log a warning, once, for each parameter given (-p, a parameters file) that no node of the process
+    """Log one warning naming the parameters given (-p, a parameters file) that no node of the process
     has: rclpy ignores them without a word, so a misspelt name (min_confidance:=0.5) left the default in
     force unnoticed. A warning, not a refusal: a parameters file shared by several nodes may hold other
     nodes' parameters. Returns the names."""
