@@ -16,6 +16,7 @@ depth_offset + depth_scale * o, so the exported model speaks millimetres.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -313,7 +314,7 @@ class LaidOut(nn.Module):
     """A composite network shown a rig's frames (B, 1, H, W) laid out as DepthModel shows them
     (fpp_nodes.core.model.network_layout: as the simulated rig's, which every network is trained on), its
     outputs turned back to the rig's: a set recorded on a rig with its projector above the camera, its
-    camera turned or its projector mirrored trains and is judged as cnn_depth runs it."""
+    camera turned or rolled or its projector mirrored trains and is judged as cnn_depth runs it."""
 
     def __init__(self, net: nn.Module, layout):
         super().__init__()
@@ -322,9 +323,29 @@ class LaidOut(nn.Module):
     def forward(self, image):
         axes = [axis - 2 for axis in self.layout.flipped]  # the frame's axes (0: up-down) as the tensor's last two
         x = image.transpose(-2, -1) if self.layout.transposed else image
-        out = self.net(x.flip(axes) if axes else x)
+        x = x.flip(axes) if axes else x
+        upright = (x.shape[-1], x.shape[-2])
+        if self.layout.turned_deg:
+            matrix, canvas = self.layout.turn(upright)
+            x = warped(x, np.linalg.inv(np.vstack([matrix, (0, 0, 1)])), canvas)
+        padded, (h, w) = pad_to_stride(x)
+        out = self.net(padded)[..., :h, :w]
+        out = warped(out, matrix, upright) if self.layout.turned_deg else out
         out = out.flip(axes) if axes else out
         return out.transpose(-2, -1) if self.layout.transposed else out
+
+
+def warped(x: torch.Tensor, matrix: np.ndarray, size: tuple[int, int]) -> torch.Tensor:
+    """x (B, C, H, W) at size (width, height), each pixel p bilinearly sampled at matrix [p, 1] (2 x 3 or 3 x
+    3: cv2.warpAffine's with WARP_INVERSE_MAP, the border replicated); differentiable."""
+    w, h = size
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=x.dtype), torch.arange(w, dtype=x.dtype), indexing="ij")
+    m = torch.as_tensor(np.asarray(matrix)[:2], dtype=x.dtype)
+    at_x, at_y = (m[i, 0] * xs + m[i, 1] * ys + m[i, 2] for i in (0, 1))
+    # align_corners: -1 and 1 are the first and last pixels' centres
+    grid = torch.stack([2 * at_x / (x.shape[-1] - 1) - 1, 2 * at_y / (x.shape[-2] - 1) - 1], dim=-1)
+    grid = grid.to(x.device).expand(x.shape[0], h, w, 2)
+    return nn.functional.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=True)
 
 
 ARCHITECTURES = ("fcn", "aen", "unet", "phase", "composite")

@@ -15,7 +15,7 @@ import yaml
 
 from fpp_nodes.core.calibration import Calibration, default_calibration_path
 from fpp_nodes.core.fused import pixel_shuffle
-from fpp_nodes.core.model import TRAINING_LAYOUT, DepthModel, ModelError, default_model_path, network_input
+from fpp_nodes.core.model import TRAINING_LAYOUT, DepthModel, Layout, ModelError, default_model_path, network_input
 from fpp_nodes.core.patterns import COMPOSITE_CODES
 from fpp_nodes.core.phase import wrap_phase
 from fpp_nodes.core.reconstruct import CompositeDecoder, PspReconstructor
@@ -55,7 +55,7 @@ from training.export import (
     rule_name,
     sha256,
 )
-from training.models import CompositeNet, Separable, build, layer_counts, pad_to_stride
+from training.models import CompositeNet, LaidOut, Separable, build, layer_counts, pad_to_stride
 from training.train import (
     REFUSED_AMPLITUDE,
     VALIDATION_BATCH,
@@ -690,7 +690,7 @@ def test_a_turned_rigs_recordings_train_as_the_shipped_network_reads_frames(tmp_
     assert card["input"]["layout"] == TRAINING_LAYOUT
     tuned, shipped = DepthModel(tmp_path / "m.onnx", threads=1), DepthModel(default_model_path(), threads=1)
     shipped.use(calibration)
-    assert tuned.layout == shipped.layout == (True, (1,))
+    assert tuned.layout == shipped.layout == Layout(True, (1,))
     image = load_sample(split_files(data, "test")[0])[0]
     ours, theirs = tuned(image), shipped(image)
     assert np.isfinite(theirs).mean() > 0.5
@@ -702,6 +702,27 @@ def test_a_turned_rigs_recordings_train_as_the_shipped_network_reads_frames(tmp_
     (tmp_path / "m.yaml").write_text(yaml.safe_dump(before, sort_keys=False))
     with pytest.raises(ModelError, match="trained on its rig's frames as they are"):
         DepthModel(tmp_path / "m.onnx")
+
+
+def test_training_shows_a_network_a_frame_as_cnn_depth_does():
+    """LaidOut (training, export's rules) and DepthModel (cnn_depth, fpp) turn a frame the same way, a
+    tilted one too (a camera or projector rolled): into the same canvas, and the outputs back."""
+    import cv2
+
+    layout = Layout(True, (1,), -12.0)
+    image = cv2.GaussianBlur(np.random.default_rng(0).random((480, 640)).astype(np.float32), (0, 0), 3)
+    seen = []
+
+    class Spy(torch.nn.Module):
+        def forward(self, x):
+            seen.append(x)
+            return x
+
+    out = LaidOut(Spy(), layout)(torch.from_numpy(image)[None, None])[0].numpy()
+    shown = layout.shown(image)
+    assert shown.shape[::-1] == layout.size((640, 480)) == (603, 726)
+    np.testing.assert_allclose(seen[0][0, 0, :726, :603].numpy(), shown, atol=1e-5)
+    np.testing.assert_allclose(out, layout.undone(shown[None], (640, 480)), atol=1e-5)
 
 
 def test_the_exact_depths_phases_decode_to_it(rig, calibration):

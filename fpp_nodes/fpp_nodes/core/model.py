@@ -251,7 +251,7 @@ class DepthModel:
         if self.scale != 1.0:
             size = self.layout.size(self.size)
             out = np.stack([cv2.resize(c, size, interpolation=cv2.INTER_LINEAR) for c in out])
-        return self.layout.undone(out)
+        return self.layout.undone(out, self.size)
 
     def sidebands(self, image: np.ndarray, out: np.ndarray) -> np.ndarray | None:
         """The stripes rule's evidence, the image's code sidebands (code_sidebands), for a composite
@@ -300,24 +300,54 @@ TRAINING_LAYOUT = "the carrier's phase rising left to right, the first code's ro
 
 class Layout(NamedTuple):
     """How a rig's frames are turned to show the network their fringes as its training did: transposed
-    (rows for columns), then mirrored along flipped (0: up-down, 1: left-right); the network's outputs
-    are turned back. The identity where the rig shows them as training did."""
+    (rows for columns), then mirrored along flipped (0: up-down, 1: left-right), then turned by turned_deg
+    (anticlockwise as shown, cv2's sense) into the canvas that holds the whole frame; the network's
+    outputs are turned back. The identity where the rig shows them as training did."""
 
     transposed: bool = False
     flipped: tuple[int, ...] = ()
+    turned_deg: float = 0.0
+
+    def _upright(self, size: tuple[int, int]) -> tuple[int, int]:
+        return size[::-1] if self.transposed else size
+
+    def turn(self, size: tuple[int, int]) -> tuple[np.ndarray, tuple[int, int]]:
+        """The turn of a transposed and mirrored frame of that (width, height): its matrix (2 x 3,
+        cv2.warpAffine's, frame to canvas) and the canvas's (width, height)."""
+        w, h = size
+        c, s = abs(np.cos(np.radians(self.turned_deg))), abs(np.sin(np.radians(self.turned_deg)))
+        canvas = (int(np.ceil(w * c + h * s - 1e-6)), int(np.ceil(w * s + h * c - 1e-6)))
+        matrix = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), self.turned_deg, 1.0)
+        matrix[:, 2] += ((canvas[0] - w) / 2, (canvas[1] - h) / 2)  # centre on centre
+        return matrix, canvas
 
     def size(self, size: tuple[int, int]) -> tuple[int, int]:
         """A frame's (width, height) as the network sees it."""
-        return size[::-1] if self.transposed else size
+        return self.turn(self._upright(size))[1] if self.turned_deg else self._upright(size)
 
     def shown(self, image: np.ndarray) -> np.ndarray:
         """A frame (H, W) as the network is shown it."""
-        return np.ascontiguousarray(np.flip(image.T if self.transposed else image, self.flipped))
+        x = np.ascontiguousarray(np.flip(image.T if self.transposed else image, self.flipped))
+        if not self.turned_deg:
+            return x
+        matrix, canvas = self.turn(x.shape[::-1])
+        return cv2.warpAffine(x, matrix, canvas, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
-    def undone(self, out: np.ndarray) -> np.ndarray:
-        """The network's outputs (C, H, W) turned back to the frame's layout."""
+    def undone(self, out: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+        """The network's outputs (C, H, W) turned back to the layout of a frame of that (width, height)."""
+        if self.turned_deg:
+            upright = self._upright(size)
+            matrix, _ = self.turn(upright)
+            back = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+            out = np.stack([cv2.warpAffine(np.ascontiguousarray(c), matrix, upright, flags=back) for c in out])
         x = np.flip(out, [axis + 1 for axis in self.flipped])
         return np.ascontiguousarray(x.transpose(0, 2, 1) if self.transposed else x)
+
+
+# Fringes tilted less than this in a frame are shown as they are: turning them bought nothing at 1-2 degrees of
+# camera or projector roll (0.4 point less at 1), and from 5 on 1.8-12.6 points (runs/s86's throwaway scripts,
+# two exploration scenes; docs/real-rig.md)
+TILT_TOLERANCE_DEG = 2.0
 
 
 def network_layout(calibration: Calibration) -> Layout:
@@ -327,15 +357,19 @@ def network_layout(calibration: Calibration) -> Layout:
     Calibration.centre_gradient). A projector showing its image mirrored (rear or ceiling mode) mirrors
     them, a camera mounted turned a quarter (portrait) or a projector above the camera transposes them;
     a network reads the carrier of such frames wrongly (a mirrored carrier's phase backwards: every pixel
-    was NaN). A set recorded on such a rig is shown to the network the same way in training
-    (training.train), so a fine-tune starts from weights that read its frames."""
+    was NaN). A camera or projector rolled about its axis tilts the fringes: by more than
+    TILT_TOLERANCE_DEG, the frames are turned upright (the network read few codes at 10 degrees, none at
+    20). A set recorded on such a rig is shown to the network the same way in training (training.train),
+    so a fine-tune starts from weights that read its frames."""
     carrier = calibration.centre_gradient(calibration.model.phase_at_depth)  # (along a row, down a column)
     rows = calibration.centre_gradient(lambda depth, u, v: calibration.code_row_phase_at_depth(0, depth, u, v))
     transposed = bool(abs(carrier[1]) > abs(carrier[0]))
     if transposed:
         carrier, rows = carrier[::-1], rows[::-1]
     # image axis 0 runs up-down, axis 1 left-right
-    return Layout(transposed, (0,) * bool(rows[1] < 0) + (1,) * bool(carrier[0] < 0))
+    flipped = (0,) * bool(rows[1] < 0) + (1,) * bool(carrier[0] < 0)
+    tilt = float(np.degrees(np.arctan2(carrier[1] * (-1 if 0 in flipped else 1), abs(carrier[0]))))
+    return Layout(transposed, flipped, tilt if abs(tilt) > TILT_TOLERANCE_DEG else 0.0)
 
 
 def warm_up_frame(calibration: Calibration) -> np.ndarray:
