@@ -777,6 +777,42 @@ def composite_ftp_phases(image: np.ndarray, calibration: Calibration):
     return carrier, codes, amplitude
 
 
+# A rig that still fits its calibration: a composite frame's codes miss its code models by at most 0.17 rad (the
+# median over a frame, below), 0.005-0.07 on plain scenes, 0.17 on the worst of 40 scenes under photometry beyond
+# training; a projector rolled 0.2 degree since: 0.38-0.44 rad, and the multi-shot depth 0.5-0.6 mm off
+# (throwaway scripts runs/s86/calibration_check*.py)
+MAX_CODE_MISFIT_RAD = 0.3
+
+
+class CodeFit:
+    """Whether a rig still fits its calibration, from one sequence: how far the composite frame's code
+    gratings (FTP) miss the phases the calibration's code models give them at the multi-shot depth and
+    phase (rad, the root sum of squares over the codes, its median over the pixels with depth). A
+    projector rolled (or moved tens of millimetres up or down) since calibrating moves the rows its
+    pixels see and the codes with them, where the multi-shot depth alone cannot tell (a roll of 0.2
+    degree put it 0.5-0.6 mm off); one moved along the baseline is not seen."""
+
+    MIN_SHARE = 0.1
+
+    def __init__(self, calibration: Calibration):
+        self.calibration = calibration
+        self.u, self.v = calibration.camera.ideal_pixels()
+        at = calibration.reference_depth_mm
+        carrier = np.broadcast_to(calibration.model.phase_at_depth(at, self.u, self.v), calibration.camera.shape)
+        self.centres = [spectral_centre(c) for c in calibration.code_phases_at_depth(at, carrier, self.u, self.v)]
+
+    def __call__(self, image: np.ndarray, depth_mm: np.ndarray, phase: np.ndarray) -> float:
+        """The misfit of a composite frame with its sequence's depth and phase; NaN where less than
+        MIN_SHARE of the pixels have depth (too few to tell)."""
+        known = np.isfinite(depth_mm)
+        if known.mean() < self.MIN_SHARE:
+            return float("nan")
+        u, v = (np.broadcast_to(a, known.shape)[known] for a in (self.u, self.v))
+        predicted = self.calibration.code_phases_at_depth(depth_mm[known], phase[known], u, v)
+        codes = ftp_code_phases(image, self.centres)
+        return float(np.median(np.sqrt(sum(wrap_phase(c[known] - p) ** 2 for c, p in zip(codes, predicted)))))
+
+
 def spectral_centre(phase: np.ndarray) -> tuple[float, float]:
     """Where a smooth phase map's fringes sit in the image's spectrum: its median gradient, in cycles per
     image width and height (signed: the lobe whose phase is the map's)."""

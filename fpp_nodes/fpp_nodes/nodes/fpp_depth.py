@@ -4,11 +4,15 @@ Subscribes fringe_sequence (K images stacked vertically). Publishes depth/image 
 invalid), depth/camera_info, points (organized PointCloud2, metres, optical frame) and quality/image
 (32FC1, each pixel's expected depth noise in millimetres: its phase noise, estimated from the residual of
 the N-step fit, through the calibration's dz/dphi; NaN invalid), each with the sequence's header. Outputs nobody
-subscribes to are not computed; with no subscriber at all, nothing is.
+subscribes to are not computed; with no subscriber at all, nothing is. Every CHECK_PERIOD_S, on a thread beside
+the stream, it checks that the rig still fits its calibration (reconstruct.CodeFit, where the sequences end with
+the composite frame): a misfit over MAX_CODE_MISFIT_RAD is a warning on /diagnostics for every sequence until a
+later check passes.
 """
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -19,9 +23,11 @@ from fpp_msgs_py import ImageError, Qos, Topics, image_to_numpy, numpy_to_image,
 
 from ..core.calibration import CalibrationError
 from ..core.phase import PhaseError
-from ..core.reconstruct import PspReconstructor, QualityLimits
+from ..core.reconstruct import MAX_CODE_MISFIT_RAD, CodeFit, PspReconstructor, QualityLimits
 from .common import camera_info_of, declare, describe, follow_calibration, load_calibration, run, warn_if_narrow
 from .health import Health
+
+CHECK_PERIOD_S = 10.0  # a check takes about 0.1 s of the other core
 
 
 class FppDepth(Node):
@@ -62,6 +68,8 @@ class FppDepth(Node):
 
     def _use(self, calibration, source):
         self.calibration = calibration
+        composite = calibration.patterns.single_shot == "composite" and bool(calibration.code_models)
+        self.code_fit, self.misfit, self.checked = (CodeFit(calibration) if composite else None), 0.0, -np.inf
         self.health.facts["calibration"] = describe(calibration, source)
         self.reconstruct = PspReconstructor(calibration, self.limits)
         cam = calibration.camera
@@ -109,6 +117,31 @@ class FppDepth(Node):
         self.health.usable_pixels(np.count_nonzero(rec.valid) / rec.valid.size, "sequences without fringes")
         # a focus monitor: the defocus the fringes show (camera and projector), which the bias rule reads
         self.health.fact("fringe blur (last)", f"{rec.blur_px:.2f} px")
+        self._check_fit(stack.reshape(k, cam.height, cam.width), rec)
+
+    def _check_fit(self, images, rec):
+        """Start a check of the rig against its calibration every CHECK_PERIOD_S (on a thread of its own, with
+        copies of what it reads); say so with every sequence while the last one failed."""
+        if self.misfit > MAX_CODE_MISFIT_RAD:
+            self.health.report(
+                "sequences from a rig that no longer fits its calibration",
+                f"the composite frame's codes miss the calibration's by {self.misfit:.2f} rad (at most "
+                f"{MAX_CODE_MISFIT_RAD} as calibrated): has the projector been turned or moved since? Depth may be "
+                "off by millimetres: calibrate again",
+            )
+        if self.code_fit is None or time.monotonic() - self.checked < CHECK_PERIOD_S:
+            return
+        self.checked = time.monotonic()
+        frame = images[self.calibration.patterns.single_shot_index].copy()
+        depth, phase, fit = rec.depth_mm.copy(), rec.phase.copy(), self.code_fit
+
+        def check():
+            misfit = fit(frame, depth, phase)
+            if fit is self.code_fit and np.isfinite(misfit):  # not a calibration since replaced
+                self.misfit = misfit
+                self.health.fact("codes' misfit to the calibration (last check)", f"{misfit:.3f} rad")
+
+        threading.Thread(target=check, daemon=True).start()
 
 
 def main(args=None):

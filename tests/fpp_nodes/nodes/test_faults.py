@@ -262,6 +262,26 @@ def test_a_camera_that_dies_mid_sequence_and_comes_back(ros_graph):
     )
 
 
+def test_a_projector_turned_since_the_calibration_is_said_on_diagnostics(ros_graph):
+    """The projector rolled 0.3 degree since the rig was calibrated (a knock): the multi-shot depth is about
+    a millimetre off and looks no different, but the composite frame's codes no longer fit the
+    calibration's (reconstruct.CodeFit): fpp_depth says so on /diagnostics with every sequence. As
+    calibrated it says nothing (test_health_on_diagnostics: every node OK)."""
+    procs, robot = ros_graph
+    for exe in ("pattern_projector", "capture_sequence", "fpp_depth"):
+        procs.start(exe)
+    procs.start("fringe_camera_sim", "-p", "projector_roll_deg:=0.3")
+    clouds = collect(robot, Topics.POINTS, PointCloud2)
+    diagnostics = Diagnostics(robot)
+    told = "the composite frame's codes miss the calibration's by"
+    assert robot.spin_until(lambda: any(told in m for m in diagnostics.said.get("/fpp_depth", [])), 60), procs.logs()
+    assert (
+        clouds
+        and float(diagnostics.value("/fpp_depth", "codes' misfit to the calibration (last check)", "0 rad").split()[0])
+        > 0.3
+    )
+
+
 def test_a_slow_subscriber_does_not_hold_back_a_fast_one(ros_graph):
     """A subscriber that takes a second per cloud gets the newest ones it can; the sensor and a fast
     subscriber go on at full rate (KEEP_LAST history: no backlog, no blocking)."""

@@ -132,6 +132,8 @@ def test_health_on_diagnostics(ros_graph):
     assert "sha256" in diagnostics.value("/fpp_depth", "calibration", "")
     # the simulated camera's blur, 0.5 px, as the fringes show it (measured 0.51)
     assert 0.4 < float(diagnostics.value("/fpp_depth", "fringe blur (last)", "0 px").split()[0]) < 0.6
+    # the rig as calibrated: its composite frames' codes fit the calibration's (reconstruct.CodeFit)
+    assert float(diagnostics.value("/fpp_depth", "codes' misfit to the calibration (last check)").split()[0]) < 0.05
     card = yaml.safe_load(open(default_model_path()[:-5] + ".yaml"))
     assert diagnostics.value("/cnn/cnn_depth", "model sha256") == card["sha256"][:12]
     assert float(diagnostics.value("/cnn/cnn_depth", "latency p95 (ms)")) > 0
