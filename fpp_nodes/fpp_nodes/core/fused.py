@@ -499,21 +499,20 @@ def block_phasors(out, fringes):
 
 
 @numba.njit(nogil=True, fastmath=_FAST, error_model="numpy", cache=_CACHE)
-def block_depth(out, absolute, confidence, fringes, code_planes, intercepts, rates, max_miss, ca, cb, da, db):
+def block_depth(out, absolute, confidence, fringes, code_planes, intercepts, rates, ca, cb, da, db):
     """reconstruct.CompositeDecoder's last step, per pixel: its carrier phase (the angle of out's first
     two planes) at the order nearest its block's absolute phase (NaN where the block has none), through
     the rational model (depth = (ca + cb phi) / (da + db phi)), and its block's confidence; both NaN where
-    the pixel shows no fringes. Also that absolute phase (phi), and whether the pixel's own codes (out's
+    the pixel shows no fringes. Also that absolute phase (phi), and how far the pixel's own codes (out's
     planes code_planes and the one after each, in the order of intercepts and rates) miss the code
-    phases it predicts (intercept + rate phi) by more than max_miss (root sum of squares)."""
+    phases it predicts (intercept + rate phi): the sum of the squares of each code's (wrapped) miss."""
     height, width = fringes.shape
     depth = np.empty((height, width), np.float32)
     sure = np.empty((height, width), np.float32)
     taken = np.empty((height, width), np.float32)
-    unfit = np.empty((height, width), np.bool_)
-    nan, most = np.float32(np.nan), np.float32(max_miss * max_miss)
+    missed = np.empty((height, width), np.float32)
+    nan = np.float32(np.nan)
     block_phase, block_confidence = np.empty(width, np.float32), np.empty(width, np.float32)
-    miss = np.empty(width, np.float32)
     for r in range(height):
         for c in range(width):  # the row's blocks, pixel by pixel: the loops below then vectorize
             block_phase[c], block_confidence[c] = absolute[r // 2, c // 2], confidence[r // 2, c // 2]
@@ -524,14 +523,13 @@ def block_depth(out, absolute, confidence, fringes, code_planes, intercepts, rat
             z = (ca[r, c] + cb[r, c] * phi) / (da[r, c] + db[r, c] * phi)
             depth[r, c] = z if fringes[r, c] else nan
             sure[r, c] = block_confidence[c] if fringes[r, c] else nan
-            miss[c] = 0
+        miss = missed[r]
+        miss[:] = 0
         for k in range(code_planes.shape[0]):
             num, den, a, b = out[code_planes[k], r], out[code_planes[k] + 1, r], intercepts[k, r], rates[k, r]
             for c in range(width):
                 miss[c] += _wrapped_square(_angle(num[c], den[c]) - a[c] - b[c] * taken[r, c])
-        for c in range(width):
-            unfit[r, c] = miss[c] > most
-    return depth, sure, taken, unfit
+    return depth, sure, taken, missed
 
 
 @numba.njit(nogil=True, error_model="numpy", cache=_CACHE)

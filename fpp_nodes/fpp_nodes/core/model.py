@@ -20,6 +20,7 @@ from .calibration import Calibration
 from .patterns import CARRIER_AMPLITUDE, COMPOSITE_CODES, PatternError, PatternSet, composite_radiance
 from .phase import PhaseError
 from .reconstruct import (
+    MAX_MISFIT_RAD,
     CompositeDecoder,
     QualityLimits,
     code_sidebands,
@@ -196,6 +197,12 @@ class DepthModel:
         said = {}
         if isinstance(self.decoder, CompositeDecoder) and (warning := self.decoder.range_warning()):
             said[RANGE_WARNING] = warning
+        if getattr(self.decoder, "misfit", 0.0) > MAX_MISFIT_RAD:
+            said["frames from a rig that no longer fits its calibration"] = (
+                f"the network's codes miss the orders they name by {self.decoder.misfit:.2f} rad, smoothly over the "
+                f"frame (at most {MAX_MISFIT_RAD} as calibrated): has the projector been turned or moved since "
+                "calibrating? Every pixel given no depth: calibrate again"
+            )
         if striped := getattr(self.decoder, "striped", 0.0):
             said["frames with surfaces striped like the pattern"] = (
                 f"{striped:.1%} of the pixels with fringes lie on surfaces whose albedo swings the fringes' "
@@ -289,6 +296,8 @@ class DepthModel:
             depth = trusted_single_shot(depth, image, fringes=fringes, max_roughness_mm=self.max_roughness_mm)
             depth[~confident(confidence, self.min_confidence)] = np.nan
             refusal_margin(depth, fringes, self.margin_px)
+            if isinstance(self.decoder, CompositeDecoder) and self.decoder.misfit_of(out, depth) > MAX_MISFIT_RAD:
+                depth[...] = np.nan  # a rig its calibration no longer fits: every order may be wrong (warnings)
             return depth, confidence
         depth = cv2.resize(out[0], self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else out[0]
         return trusted_single_shot(depth, image), None

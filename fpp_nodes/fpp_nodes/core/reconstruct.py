@@ -364,9 +364,12 @@ class CompositeDecoder:
     of the median around them) lie on a surface outside the range: a pixel where more than max_outside
     of the pixels with fringes around it (outside_share) do has confidence 0. Codes too noisy to name an
     order fit scattered orders outside it, which their neighbours' seldom share.
+    A rig that moved since its calibration (a projector knocked) shifts every code a little, so that the
+    codes miss the orders named all over the frame (misfit_of; DepthModel refuses such a frame).
     After each call: outside_range, the share of the blocks with fringes whose codes named no order
     of the working range (a scene too near or too far, or codes too noisy to tell); striped and beyond,
-    the shares refused for their stripes and for lying on surfaces outside the range.
+    the shares refused for their stripes and for lying on surfaces outside the range; taken, each pixel's
+    absolute carrier phase, which misfit_of reads.
     """
 
     def __init__(
@@ -377,7 +380,8 @@ class CompositeDecoder:
         max_outside: float = np.inf,
     ):
         self.min_surface_px, self.max_sideband, self.max_outside = min_surface_px, max_sideband, max_outside
-        self.outside_range = self.striped = self.beyond = 0.0  # until the first call
+        self.outside_range = self.striped = self.beyond = self.misfit = 0.0  # until the first call
+        self.taken = None
         if not calibration.code_models:
             raise PhaseError("the composite decoder needs a calibration made with the composite pattern (code models)")
         if calibration.working_range_mm is None:
@@ -597,23 +601,39 @@ class CompositeDecoder:
             sidebands = sidebands[:: fused.BLOCK, :: fused.BLOCK]
         absolute, confidence = self.block_orders(list(phasors), min_confidence, shown, sidebands)
         m = self.pixel_maps
-        depth, confidence, taken, unfit = fused.block_depth(
-            out,
-            absolute,
-            confidence,
-            fringes,
-            self.code_planes,
-            m.intercepts,
-            m.rates,
-            self.min_separation / 2,
-            *self.terms,
+        depth, confidence, taken, missed = fused.block_depth(
+            out, absolute, confidence, fringes, self.code_planes, m.intercepts, m.rates, *self.terms
         )
         # a pixel whose own codes name another order than its block's (one across a step from most of its block) is
         # refused; codes that fit the block's within the decisions' margin name no other, so only the others are asked
-        where = np.flatnonzero(unfit & fringes)
+        where = np.flatnonzero((missed > np.float32((self.min_separation / 2) ** 2)) & fringes)
         other = np.abs(self.pixel_code_phase(out, where) - taken.ravel()[where]) >= np.pi  # not where they name none
         depth.ravel()[where[other]] = np.nan
+        self.taken = taken
         return depth, confidence
+
+    def misfit_of(self, out: np.ndarray, depth: np.ndarray) -> float:
+        """After a call on out, at the pixels depth (its output, after every rule) keeps: how far the rig seems
+        to have moved since its calibration. A knock moves the projector rows the pixels see smoothly over the
+        image, and every code with them; noise, outlines and textures scatter the codes' misses both ways. So
+        each code's signed miss of the order named, at every MISFIT_STEP-th pixel, a plane fitted to it over
+        the image, and the RMS of the fitted planes there, root sum of squares over the codes (rad; 0 where
+        fewer than MISFIT_SHARE of those pixels keep a depth). Kept as misfit."""
+        grid = (slice(None, None, MISFIT_STEP),) * 2
+        given = np.isfinite(depth[grid])
+        self.misfit = 0.0
+        if given.mean() >= MISFIT_SHARE:
+            ys, xs = np.nonzero(given)
+            basis = np.stack(
+                [np.ones(xs.size), xs * (MISFIT_STEP / depth.shape[1]), ys * (MISFIT_STEP / depth.shape[0])], 1
+            )
+            taken, m, total = self.taken[grid][given], self.pixel_maps, 0.0
+            for k, plane in enumerate(self.code_planes):
+                code = np.arctan2(out[plane][grid][given], out[plane + 1][grid][given])
+                miss = wrap_phase(code - m.intercepts[k][grid][given] - m.rates[k][grid][given] * taken)
+                total += np.mean((basis @ np.linalg.solve(basis.T @ basis, basis.T @ miss)) ** 2)
+            self.misfit = float(np.sqrt(total))
+        return self.misfit
 
     def pixel_code_phase(self, out: np.ndarray, where: np.ndarray) -> np.ndarray:
         """code_phase at the image's pixels where (flat indices), from out's phasors there."""
@@ -669,6 +689,13 @@ class CompositeDecoder:
         np.copyto(own, np.float32(np.nan), where=~(agree & (confidence >= min_confidence)) | beyond)
         return own, confidence
 
+
+# A rig that moved since its calibration (a projector knocked): CompositeDecoder.misfit_of over a frame's output.
+# As calibrated at most 0.056 rad on the 200 validation scenes (median 0.011) and 0.048 on 30 scenes under
+# photometry beyond training; a projector rolled 0.1-0.5 degree 0.14-0.26, moved 10-20 mm up or down 0.09-0.21,
+# where the output had 0.05-85% of its pixels off by more than 1 mm (throwaway scripts runs/s86/knocked_*.py,
+# misfit_plane.py). Beyond MAX_MISFIT_RAD, DepthModel gives the frame no depth and says why.
+MAX_MISFIT_RAD, MISFIT_STEP, MISFIT_SHARE = 0.08, 8, 0.05
 
 # more than this share of the pixels with fringes naming no order of the working range: the scene, or part of
 # it, is outside it (chosen on validation, every surface in the range: 1 frame in 200 passes it; beyond the
