@@ -31,6 +31,7 @@ from fpp_nodes.core.model import (
     trusted_single_shot,
 )
 from fpp_nodes.core.reconstruct import (
+    MAX_MISFIT_RAD,
     CompositeDecoder,
     QualityLimits,
     drop_flying_pixels,
@@ -213,6 +214,7 @@ REFUSAL_STEPS = (
     "refused surface",  # confidence 0: too small a surface, striped like the codes, beyond the range
     "low confidence",  # below the card's threshold
     "margin",  # beside a pixel refused where fringes show
+    "rig misfit",  # the whole frame: its codes miss the orders named as a rig that moved since calibrating does
 )
 
 
@@ -242,6 +244,9 @@ def refusals(model, image: np.ndarray, out: np.ndarray | None = None) -> tuple[d
     refused_first("low confidence", np.isnan(depth))
     refusal_margin(depth, fringes, model.margin_px)
     refused_first("margin", np.isnan(depth))
+    if model.decoder.misfit_of(out, depth) > MAX_MISFIT_RAD:
+        depth[...] = np.nan
+    refused_first("rig misfit", np.isnan(depth))
     return steps, depth
 
 
