@@ -363,7 +363,9 @@ class CompositeDecoder:
     those whose codes fit an order outside it closely (outside_phase) that their neighbours' fit too (within pi
     of the median around them) lie on a surface outside the range: a pixel where more than max_outside
     of the pixels with fringes around it (outside_share) do has confidence 0. Codes too noisy to name an
-    order fit scattered orders outside it, which their neighbours' seldom share.
+    order fit scattered orders outside it, which their neighbours' seldom share. In a frame where that
+    refused more than BEYOND_WARNING of them, so does a surface whose codes fit an order outside the range
+    more closely than the one it names at most of its blocks (outside_surfaces): a band of a far surface.
     A rig that moved since its calibration (a projector knocked) shifts every code a little, so that the
     codes miss the orders named all over the frame (misfit_of; DepthModel refuses such a frame).
     After each call: outside_range, the share of the blocks with fringes whose codes named no order
@@ -645,6 +647,29 @@ class CompositeDecoder:
         row = [a.reshape(*a.shape[:-2], 1, -1)[..., where] for a in maps]
         return fused.code_phase(carrier, ordered, *row, self.min_separation / 2, self.coarse_turns)[0]
 
+    def code_miss(self, codes: list, phase: np.ndarray, where: np.ndarray) -> np.ndarray:
+        """At the blocks where (flat indices), how far their codes miss the codes an absolute carrier phase (one
+        per block) predicts: the sum over the codes of the squared (wrapped) miss."""
+        m, total = self.block_maps, np.zeros(where.size, np.float32)
+        for k, i in enumerate(self.code_order):
+            predicted = m.intercepts[k].ravel()[where] + m.rates[k].ravel()[where] * phase
+            total += wrap_phase(codes[i].ravel()[where] - predicted) ** 2
+        return total
+
+    def outside_surfaces(self, carrier, codes, absolute, surface, counted, count: int) -> np.ndarray:
+        """Per surface label (0 .. count - 1), whether it lies outside the working range though its codes name an
+        order inside: at more than half of its counted blocks the codes fit an order outside the range
+        (outside_phase) more closely than the order the surface names there (absolute). Beyond the range the
+        codes repeat, and a far surface's fit a wrong order inside it on bands within the decisions' margin,
+        while they fit their own order outside it as closely as a surface inside the range fits its own."""
+        where = np.flatnonzero(counted)
+        fit = self.outside_phase(carrier, codes, where)
+        found = np.isfinite(fit)
+        where, fit = where[found], fit[found]
+        closer = where[self.code_miss(codes, fit, where) < self.code_miss(codes, absolute.ravel()[where], where)]
+        blocks = np.bincount(surface[counted], minlength=count)
+        return np.bincount(surface.ravel()[closer], minlength=count) > blocks / 2
+
     def block_orders(
         self, phasors: list, min_confidence: float, fringes: np.ndarray, sidebands: np.ndarray | None
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -672,11 +697,15 @@ class CompositeDecoder:
         np.put(ordered, adopted, True)
         surface, size = order_surfaces(local, ordered)
         agreeing = fused.label_counts(surface, size.size, agree)
+        counted = agree.copy()  # the blocks whose own codes name the order kept, before adopted ones join
         np.put(agree, adopted, True)  # kept, after the votes
+        self.beyond = np.count_nonzero(beyond & agree) / max(shown, 1)  # the orders it takes away
         share = (agreeing / np.maximum(size, 1)).astype(np.float32)
         share[0] = 0  # label 0: beside a step, on no surface
         coded = size - np.bincount(surface.ravel()[adopted], minlength=size.size)  # adopted pixels make no surface
         share[coded * fused.BLOCK**2 < self.min_surface_px] = 0
+        if self.beyond > BEYOND_WARNING:  # surfaces outside the range were found: may others name orders inside it?
+            share[self.outside_surfaces(carrier, codes, local, surface, counted, size.size)] = 0
         self.striped = 0.0
         if sidebands is not None and np.isfinite(self.max_sideband):
             striped = np.bincount(surface[sidebands >= self.max_sideband], minlength=size.size) > size / 2
@@ -685,7 +714,6 @@ class CompositeDecoder:
             self.striped = float(np.sum(size[striped])) / max(shown, 1)
         confidence = np.minimum(vote, np.take(share, surface))
         confidence[beyond] = 0
-        self.beyond = np.count_nonzero(beyond & agree) / max(shown, 1)  # the orders it took away
         np.copyto(own, np.float32(np.nan), where=~(agree & (confidence >= min_confidence)) | beyond)
         return own, confidence
 
