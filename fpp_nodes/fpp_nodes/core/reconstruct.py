@@ -704,14 +704,16 @@ class CompositeDecoder:
         share[0] = 0  # label 0: beside a step, on no surface
         coded = size - np.bincount(surface.ravel()[adopted], minlength=size.size)  # adopted pixels make no surface
         share[coded * fused.BLOCK**2 < self.min_surface_px] = 0
-        if self.beyond > BEYOND_WARNING:  # surfaces outside the range were found: may others name orders inside it?
-            share[self.outside_surfaces(carrier, codes, local, surface, counted, size.size)] = 0
         self.striped = 0.0
         if sidebands is not None and np.isfinite(self.max_sideband):
             striped = np.bincount(surface[sidebands >= self.max_sideband], minlength=size.size) > size / 2
             striped &= share > 0  # on a surface (not label 0) whose vote counts
             share[striped] = 0
             self.striped = float(np.sum(size[striped])) / max(shown, 1)
+        # surfaces outside the range were found: may others name orders inside it? (after the stripes, the reason
+        # a user is told where both apply)
+        if self.beyond > BEYOND_WARNING:
+            share[self.outside_surfaces(carrier, codes, local, surface, counted, size.size)] = 0
         confidence = np.minimum(vote, np.take(share, surface))
         confidence[beyond] = 0
         np.copyto(own, np.float32(np.nan), where=~(agree & (confidence >= min_confidence)) | beyond)
