@@ -15,7 +15,8 @@ with the rig's calibration; beside it, the same decoded with the model card's ca
 rig's, what cnn_depth used before; '-' for cameras of another size, which it cannot read). Outside
 the working range: surfaces nearer or farther than the calibration's working range (1000-1350 mm in the
 default rig), where the composite's codes begin to repeat; beside the card's rules, the same without
-the rule against them (the decoder's max_outside). Prints the coverage of the lit pixels, the share
+the rule against them (the decoder's max_outside); with them, planes in the range tilted beyond any
+background in training (40-60 degrees against 35). Prints the coverage of the lit pixels, the share
 of the output off the exact depth by more than 1 and 4 mm, and the number of frames on which the sensor
 warns of the working range.
 
@@ -102,9 +103,16 @@ def outside_scenes(rig, kind: str, seed: int) -> Scene:
     """A scene with surfaces outside the default rig's working range (1000-1350 mm), by kind: a plane
     650-950 mm away, or 1420-3000 mm, tilted by up to 25 degrees; the demo's sculpture or separated
     objects (their parts that stand off their background, in the range) before a wall at 1500-2500
-    mm; a box whose top reaches 880-950 mm from a background in the range."""
+    mm; a box whose top reaches 880-950 mm from a background in the range. Or, in the range, a plane
+    tilted 40-60 degrees towards any direction: steeper than any background in training (35)."""
     rng = np.random.default_rng([seed, 3])
     tilts = rng.uniform(-25, 25, 2)
+    if kind == STEEP:
+        tilt, direction = np.radians(rng.uniform(40, 60)), rng.uniform(0, 2 * np.pi)
+        slopes = np.degrees(np.arctan(np.tan(tilt) * np.array([np.cos(direction), np.sin(direction)])))
+        unit = plane_scene(rig, 1.0, *slopes).depth_mm  # depth over the depth at the image centre
+        near, far = 1000 / unit.min(), 1350 / unit.max()  # every pixel in the range, as the families' scenes
+        return Scene(kind, rng.uniform(near, max(near, far)) * unit, np.full(unit.shape, 0.9))
     if kind == "near planes":
         return plane_scene(rig, rng.uniform(650, 950), *tilts)
     if kind == "far planes":
@@ -121,7 +129,8 @@ def outside_scenes(rig, kind: str, seed: int) -> Scene:
     return Scene(kind, np.where(box, rng.uniform(880, 950), background.depth_mm), np.full(box.shape, 0.8))
 
 
-OUTSIDE = ("near planes", "far planes", "objects before a far wall", "a box reaching out of the range")
+STEEP = "planes in the range tilted 40-60 degrees"
+OUTSIDE = ("near planes", "far planes", "objects before a far wall", "a box reaching out of the range", STEEP)
 
 
 def measure(models, rig, patterns, scenes, texture=None, make=make_scene) -> list[list]:
@@ -228,7 +237,7 @@ def main(argv=None):
         row(name, [[totals.get(id(d)) for d in pair] for pair in decodings])
     pair = f"{'the card':>26}   {'without max_outside':>26}"
     print(f"\n{'':46} {' | '.join([pair] * len(paths))}")
-    title = f"outside the working range ({4 * len(args.seed)} scenes each)"
+    title = f"outside the range, or steeper ({4 * len(args.seed)} scenes each)"
     print(f"{title:46} {' | '.join([columns + '   ' + columns] * len(paths))}")
     withouts = []
     for path in paths:
