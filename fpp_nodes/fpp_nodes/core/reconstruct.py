@@ -580,8 +580,9 @@ class CompositeDecoder:
         )
         return (
             f"the codes of {self.outside_range:.0%} of the pixels with fringes name no order of the working range "
-            f"{near:g}-{far:g} mm{refused}: is the scene, or part of it, nearer or farther, or are its codes "
-            "unreadable?"
+            f"{near:g}-{far:g} mm{refused}: is the scene, or part of it, nearer or farther, are its codes "
+            "unreadable, or is the frame not the composite (a phase-shift pattern's: fed the camera's stream while "
+            "the projector shows the whole sequence, take fringe_single or show the composite alone)?"
         )
 
     def __call__(

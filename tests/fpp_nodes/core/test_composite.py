@@ -335,7 +335,7 @@ def test_a_threshold_of_zero_does_not_undo_the_refusals(rig, patterns):
 def test_a_phase_shift_frame_read_as_the_composite_is_nan(rig, patterns):
     """A projector left in its sequence hands a single-shot sensor's cnn_depth phase-shift frames: they
     carry no codes, so they name no order, and the shipped model gives them no depth (the composite
-    of the same scene: most of it)."""
+    of the same scene: most of it), with a warning that names the likely cause."""
     from fpp_nodes.core.model import DepthModel, default_model_path
 
     model = DepthModel(default_model_path())
@@ -344,6 +344,7 @@ def test_a_phase_shift_frame_read_as_the_composite_is_nan(rig, patterns):
     assert np.isfinite(model(capture.images[patterns.single_shot_index]))[lit].mean() > 0.9
     for frame in (0, patterns.top_frequency_frames.start, patterns.single_shot_index - 1):
         assert np.isfinite(model(capture.images[frame]))[lit].mean() < 0.01, frame
+        assert "is the frame not the composite" in model.warnings()["frames outside the working range"], frame
 
 
 def test_order_surfaces_join_neighbours_whose_absolute_phases_differ_by_less_than_pi():
