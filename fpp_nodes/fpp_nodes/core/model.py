@@ -108,6 +108,7 @@ class DepthModel:
         # an output at 1/r of the input's resolution with r^2 times the channels, shuffled here (export)
         self.shuffle = int((self.card.get("output") or {}).get("pixel_shuffle", 1))
         self.decoder = self.card_calibration = self.calibration = None
+        self.max_misfit_rad = MAX_MISFIT_RAD  # a composite frame whose codes miss by more is refused (scripts: inf)
         if self.output in ("fringe_order", "fringe_phases"):  # a phase-aware model: its card holds its calibration
             try:
                 self.card_calibration = Calibration.from_dict(self.card["calibration"])
@@ -197,10 +198,10 @@ class DepthModel:
         said = {}
         if isinstance(self.decoder, CompositeDecoder) and (warning := self.decoder.range_warning()):
             said[RANGE_WARNING] = warning
-        if getattr(self.decoder, "misfit", 0.0) > MAX_MISFIT_RAD:
+        if getattr(self.decoder, "misfit", 0.0) > self.max_misfit_rad:
             said["frames from a rig that no longer fits its calibration"] = (
                 f"the network's codes miss the orders they name by {self.decoder.misfit:.2f} rad, smoothly over the "
-                f"frame (at most {MAX_MISFIT_RAD} as calibrated): has the projector been turned or moved since "
+                f"frame (at most {self.max_misfit_rad} as calibrated): has the projector been turned or moved since "
                 "calibrating? Every pixel given no depth: calibrate again"
             )
         if striped := getattr(self.decoder, "striped", 0.0):
@@ -296,7 +297,7 @@ class DepthModel:
             depth = trusted_single_shot(depth, image, fringes=fringes, max_roughness_mm=self.max_roughness_mm)
             depth[~confident(confidence, self.min_confidence)] = np.nan
             refusal_margin(depth, fringes, self.margin_px)
-            if isinstance(self.decoder, CompositeDecoder) and self.decoder.misfit_of(out, depth) > MAX_MISFIT_RAD:
+            if isinstance(self.decoder, CompositeDecoder) and self.decoder.misfit_of(out, depth) > self.max_misfit_rad:
                 depth[...] = np.nan  # a rig its calibration no longer fits: every order may be wrong (warnings)
             return depth, confidence
         depth = cv2.resize(out[0], self.size, interpolation=cv2.INTER_LINEAR) if self.downsample > 1 else out[0]
