@@ -127,7 +127,7 @@ class FppDepth(Node):
                 "sequences from a rig that no longer fits its calibration",
                 f"the composite frame's codes miss the calibration's by {self.misfit:.2f} rad (at most "
                 f"{MAX_CODE_MISFIT_RAD} as calibrated): has the projector been turned or moved since? Depth may be "
-                "off by millimetres: calibrate again",
+                "off (0.3 mm at a roll of 0.1 degree, more beyond): calibrate again",
             )
         if self.code_fit is None or time.monotonic() - self.checked < CHECK_PERIOD_S:
             return
