@@ -722,18 +722,18 @@ class CompositeDecoder:
 MAX_MISFIT_RAD, MISFIT_STEP, MISFIT_SHARE = 0.08, 8, 0.05
 
 
-def smooth_miss(misses: list[np.ndarray], where: np.ndarray, within: float = np.inf, rounds: int = 3) -> float:
+def smooth_miss(misses: list[np.ndarray], where: np.ndarray, within: float = np.inf) -> float:
     """How far codes miss smoothly over an image (rad): each code's signed misses at the pixels where (a mask
     of the image, or of a grid over it), a plane fitted to them over the image, and the fitted planes' RMS
     there, root sum of squares over the codes. A rig moved since its calibration moves the projector rows
     its pixels see smoothly, and every code with them; noise, outlines and textures scatter the misses both
-    ways and fit no plane. With within finite, the planes are fitted again (rounds times in all) to the
-    pixels whose misses all lie within that of the last planes: codes read by FTP stray by radians at
+    ways and fit no plane. With within finite, the planes are fitted twice again, each time to the pixels
+    whose misses all lie within that of the last planes: codes read by FTP stray by radians at
     outlines and in clipped or dark patches, which pull a least-squares plane."""
     rows, cols = np.nonzero(where)
     basis = np.stack([np.ones(cols.size), cols / where.shape[1], rows / where.shape[0]], 1)
     kept = np.ones(cols.size, bool)
-    for _ in range(rounds if np.isfinite(within) else 1):
+    for _ in range(3 if np.isfinite(within) else 1):
         fits = [basis @ np.linalg.lstsq(basis[kept], miss[kept], rcond=None)[0] for miss in misses]
         kept = np.all([np.abs(miss - fit) < within for miss, fit in zip(misses, fits)], axis=0)
         if np.count_nonzero(kept) < basis.shape[1]:
