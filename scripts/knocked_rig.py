@@ -77,10 +77,12 @@ def main(argv=None):
             capture = render(rig, make_scene(rig, family, seed), patterns, np.random.default_rng(seed))
             truth = np.where(capture.valid, capture.depth_mm, np.nan)
             image = capture.images[patterns.single_shot_index]
-            ruled_totals.add(ruled(image), truth, 1.0)
+            frame = ruled.frame(image)
+            out = ruled.outputs(frame)  # one network run; each model decodes it with its own decoder
+            ruled_totals.add(ruled.decode(frame, out)[0], truth, 1.0)
             misfits.append(ruled.decoder.misfit)
             refused += "frames from a rig that no longer fits its calibration" in ruled.warnings()
-            depth = unruled(image)
+            depth = unruled.decode(frame, out)[0]
             for total, bound in zip(unruled_totals, (1.0, 0.25)):
                 total.add(depth, truth, bound)
             multi = psp(capture.images)
@@ -96,10 +98,9 @@ def main(argv=None):
         )
     # the multi-shot check's false alarms: fresh scenes of every family under the training's random photometry
     misfits = []
-    for i, family in enumerate(FAMILY_NAMES * 3):
-        rig = random_rig(np.random.default_rng(args.seed + 2900 + i), base)
-        scene = make_scene(rig, family, args.seed + 2900 + i)
-        capture = render(rig, scene, patterns, np.random.default_rng(args.seed + 2900 + i))
+    for seed, family in enumerate(FAMILY_NAMES * 3, start=args.seed + 2900):
+        rig = random_rig(np.random.default_rng(seed), base)
+        capture = render(rig, make_scene(rig, family, seed), patterns, np.random.default_rng(seed))
         multi = psp(capture.images)
         misfits.append(code_fit(capture.images[patterns.single_shot_index], multi.depth_mm, multi.phase))
     measured = np.array([m for m in misfits if np.isfinite(m)])
